@@ -1,0 +1,130 @@
+"""The paper's identification procedure (§6.2): grasp, balance the grasp forces, then compress.
+
+Backend-agnostic: it sees only hand readings (counts, strain) and sends position set points, so the
+same code drives the twin and the real hand. The compression follows the eq. 7 family
+m_k(t) = p_k + offset + amplitude * sin(omega * t + phase), in encoder counts, where p_k is finger
+k's balanced grasp position. The paper's printed constants (10 + 40 sin(3000 t) at 18 samples/s)
+alias, so the defaults below are chosen to compress the foam a few millimetres at a rate the 30 Hz
+loop resolves (60 samples per period).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from twin import units
+from twin.interface.devices import HandCommand, HandReading
+from twin.interface.errors import ConfigError
+
+PHASES = ("close", "balance", "compress")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompressProfile:
+    """Constants of the procedure; every one is a documented choice, see the module docstring."""
+
+    close_velocity_counts_s: float = 6000.0
+    """Approach speed: ~0.86 rad/s of the inner link, full closing in under 3 s."""
+    contact_torque_nm: float = 0.10
+    """A finger stops closing when its distal torque (eq. 2) rises this far above its no-load value."""
+    grasp_torque_nm: float = 0.20
+    """Balanced grasp: every finger is servoed to this distal torque before compressing."""
+    balance_s: float = 1.5
+    balance_gain_counts_per_nm_s: float = 2000.0
+    """Integral gain of the torque balance (counts per N*m of error per second)."""
+    offset_counts: float = 200.0
+    amplitude_counts: float = 200.0
+    """Eq. 7 offset and amplitude: 200 counts of drive ~ 2 mm at the fingertip after breakaway."""
+    frequency_hz: float = 0.5
+    phase_rad: float = -math.pi / 2
+    """With offset = amplitude and phase -pi/2 the profile starts at the balanced grasp."""
+    close_timeout_s: float = 6.0
+    spread_counts: float = 0.0
+    """Spread 0: F1 and F2 side by side oppose the thumb F3, as in the paper's Fig. 3b."""
+
+    def __post_init__(self) -> None:
+        for name in ("close_velocity_counts_s", "contact_torque_nm", "grasp_torque_nm"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"compress: {name} must be > 0")
+        if self.amplitude_counts < 0 or self.frequency_hz <= 0 or self.balance_s < 0:
+            raise ConfigError("compress: amplitude >= 0, frequency > 0 and balance_s >= 0 required")
+        if self.offset_counts + self.amplitude_counts > 4000:
+            raise ConfigError(
+                "compress: offset + amplitude above 4000 counts would crush the object"
+            )
+
+    def to_json(self) -> dict[str, float]:
+        """Plain-JSON constants for run metadata."""
+        return dict(vars(self))
+
+
+@dataclass
+class CompressController:
+    """State machine close -> balance -> compress, one step per hand reading."""
+
+    profile: CompressProfile = field(default_factory=CompressProfile)
+    phase: str = "close"
+    _baseline_nm: np.ndarray | None = None
+    _hold_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _in_contact: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
+    _t_phase: float = 0.0
+    _t_last: float | None = None
+    grasp_counts: np.ndarray | None = None
+
+    def __call__(self, reading: HandReading) -> HandCommand:
+        """Next set points from the latest reading."""
+        p = self.profile
+        torque = units.strain_to_torque_nm(reading.strain_counts)
+        position = reading.position_counts[:3].astype(float)
+        if self._baseline_nm is None:
+            self._baseline_nm = torque.copy()
+            self._t_phase = reading.t_s
+        dt = 0.0 if self._t_last is None else reading.t_s - self._t_last
+        self._t_last = reading.t_s
+        load = torque - self._baseline_nm
+        if self.phase == "close":
+            target = self._close(reading.t_s, position, load)
+        elif self.phase == "balance":
+            target = self._balance(reading.t_s, torque, dt)
+        else:
+            target = self._compress(reading.t_s)
+        return HandCommand(
+            np.append(target, p.spread_counts),
+            max_velocity_counts_s=p.close_velocity_counts_s,
+        )
+
+    def _close(self, t_s: float, position: np.ndarray, load: np.ndarray) -> np.ndarray:
+        p = self.profile
+        touched = ~self._in_contact & (load > p.contact_torque_nm)
+        self._hold_counts[touched] = position[touched]
+        self._in_contact |= touched
+        target = np.where(self._in_contact, self._hold_counts, float(units.FINGER_FULL_COUNTS))
+        if self._in_contact.all() or t_s - self._t_phase > p.close_timeout_s:
+            self._hold_counts[~self._in_contact] = position[~self._in_contact]
+            self._enter("balance", t_s)
+        return target
+
+    def _balance(self, t_s: float, torque: np.ndarray, dt: float) -> np.ndarray:
+        p = self.profile
+        error = p.grasp_torque_nm - torque
+        step = np.clip(p.balance_gain_counts_per_nm_s * error * dt, -100.0, 100.0)
+        self._hold_counts = np.clip(self._hold_counts + step, 0, units.FINGER_MAX_COUNTS)
+        if t_s - self._t_phase >= p.balance_s:
+            self.grasp_counts = self._hold_counts.copy()
+            self._enter("compress", t_s)
+        return self._hold_counts
+
+    def _compress(self, t_s: float) -> np.ndarray:
+        p = self.profile
+        t = t_s - self._t_phase
+        wave = p.offset_counts + p.amplitude_counts * math.sin(
+            2 * math.pi * p.frequency_hz * t + p.phase_rad
+        )
+        return self.grasp_counts + wave
+
+    def _enter(self, phase: str, t_s: float) -> None:
+        self.phase = phase
+        self._t_phase = t_s

@@ -1,0 +1,75 @@
+"""What the rig needs from a backend: its devices and its clock.
+
+The sim backend's clock is simulated time that advances as fast as the physics runs (deterministic
+for a seed); the hardware backend's clock is wall time. The rig only calls this interface.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from twin.interface.devices import Hand, StereoCamera, TactileArray
+
+
+class Clock(ABC):
+    """The run clock, in seconds from the start of the run."""
+
+    @abstractmethod
+    def now(self) -> float:
+        """Present time on the run clock (s)."""
+
+    @abstractmethod
+    def advance_to(self, t_s: float) -> None:
+        """Bring the world to time t_s: step the physics (sim) or sleep (hardware)."""
+
+
+class Backend(ABC):
+    """A set of devices on one clock."""
+
+    name: str
+    hand: Hand
+    tactile: TactileArray | None = None
+    stereo: StereoCamera | None = None
+
+    @property
+    @abstractmethod
+    def clock(self) -> Clock:
+        """The clock the rig schedules sampling on."""
+
+    @property
+    def is_simulated(self) -> bool:
+        """True when time is simulated (the rig never sleeps)."""
+        return False
+
+    def connect(self) -> None:
+        """Connect every device; on failure disconnect those already connected."""
+        done = []
+        try:
+            for device in self.devices():
+                device.connect()
+                done.append(device)
+        except BaseException:
+            for device in reversed(done):
+                device.disconnect()
+            raise
+
+    def disconnect(self) -> None:
+        """Disconnect every device (idles the hand first)."""
+        for device in reversed(self.devices()):
+            device.disconnect()
+
+    def devices(self) -> list[Any]:
+        """The devices present, hand first."""
+        return [d for d in (self.hand, self.tactile, self.stereo) if d is not None]
+
+    def ground_truth(self) -> Mapping[str, np.ndarray] | None:
+        """Quantities only a simulator knows (joint angles, contact forces); None on hardware."""
+        return None
+
+    def metadata(self) -> dict[str, Any]:
+        """What the run's metadata should record about this backend."""
+        return {"backend": self.name}

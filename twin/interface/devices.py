@@ -1,0 +1,147 @@
+"""The backend-agnostic device interface: the hand, the tactile array and the stereo camera.
+
+A device does not know whether it is simulated. Readings leave it in the units the real device
+reports (encoder counts, strain 0-255, 15-bit taxel counts, 8-bit frames); physical units come from
+twin.units. This module imports no backend.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Self
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twin.interface.errors import DeviceNotConnectedError
+from twin.interface.specs import DeviceSpec
+
+MOTOR_LABELS = ("F1", "F2", "F3", "S")
+FINGER_LABELS = ("F1", "F2", "F3")
+
+
+class Device(ABC):
+    """Connect/disconnect life cycle shared by every device (a context manager)."""
+
+    def __init__(self) -> None:
+        self._connected = False
+
+    @property
+    @abstractmethod
+    def spec(self) -> DeviceSpec:
+        """Rate, latency and channels; available before connect()."""
+
+    @property
+    def is_connected(self) -> bool:
+        """Whether connect() succeeded and disconnect() has not been called."""
+        return self._connected
+
+    def connect(self) -> None:
+        """Open the device; raises DeviceNotConfiguredError or DeviceError on failure."""
+        self._connect()
+        self._connected = True
+
+    def disconnect(self) -> None:
+        """Close the device; safe to call twice."""
+        if self._connected:
+            self._connected = False
+            self._disconnect()
+
+    def _require_connection(self) -> None:
+        if not self._connected:
+            raise DeviceNotConnectedError(
+                f"{self.spec.name} is not connected; call connect() first"
+            )
+
+    @abstractmethod
+    def _connect(self) -> None: ...
+
+    def _disconnect(self) -> None:
+        """Backend hook; nothing by default."""
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
+
+@dataclass(frozen=True)
+class HandReading:
+    """One feedback sample of the BH8: motors in order F1, F2, F3, spread."""
+
+    t_s: float
+    """When the hand sampled it, on the run clock."""
+    position_counts: NDArray[np.int32]
+    """(4,) encoder counts of the finger motors and the spread motor."""
+    velocity_counts: NDArray[np.int32]
+    """(4,) encoder counts per velocity sample time (see HandSpec)."""
+    strain_counts: NDArray[np.int32]
+    """(3,) strain gauges 0-255 of F1-F3 (torque about the distal joint)."""
+
+
+@dataclass(frozen=True)
+class HandCommand:
+    """Position set points for the 4 motors (counts) and the slew limit to reach them."""
+
+    position_counts: NDArray[np.float64]
+    max_velocity_counts_s: float = 8_000.0
+
+    def __post_init__(self) -> None:
+        pos = np.asarray(self.position_counts, dtype=np.float64)
+        if pos.shape != (4,):
+            raise ValueError(
+                f"position_counts must have 4 entries (F1, F2, F3, S), got {pos.shape}"
+            )
+        object.__setattr__(self, "position_counts", pos)
+
+
+class Hand(Device):
+    """The BH8 hand: 4 motors commanded in counts; encoder, velocity and strain readings."""
+
+    @abstractmethod
+    def read(self) -> HandReading:
+        """Sample the hand now (sim: the present state; hardware: one feedback cycle)."""
+
+    @abstractmethod
+    def command(self, command: HandCommand) -> HandCommand:
+        """Send set points; returns the command actually applied after the device's clipping."""
+
+    @abstractmethod
+    def idle(self) -> None:
+        """Terminate motor control (the protocol's T): motors stop driving."""
+
+
+@dataclass(frozen=True)
+class TactileReading:
+    """One scan of the 162 taxels in raw 15-bit counts."""
+
+    t_s: float
+    counts: NDArray[np.int32]
+
+
+class TactileArray(Device):
+    """The PPS tactile pads (7 pads, 162 taxels)."""
+
+    @abstractmethod
+    def read(self) -> TactileReading:
+        """Scan all taxels now."""
+
+
+@dataclass(frozen=True)
+class StereoFrame:
+    """A synchronised image pair (H, W, 3) uint8, RGB."""
+
+    t_s: float
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+
+
+class StereoCamera(Device):
+    """The Flea2 stereo pair."""
+
+    @abstractmethod
+    def read(self) -> StereoFrame:
+        """Grab both cameras, then retrieve both frames."""

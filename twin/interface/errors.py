@@ -1,0 +1,21 @@
+"""Errors every backend raises the same way, so the CLI can turn them into one-line messages."""
+
+
+class TwinError(Exception):
+    """Base of the errors the CLI reports as one line and a non-zero exit."""
+
+
+class ConfigError(TwinError, ValueError):
+    """A parameter, object or config file is invalid; raised before anything is simulated."""
+
+
+class DeviceError(TwinError):
+    """A device failed while in use."""
+
+
+class DeviceNotConnectedError(DeviceError, ConnectionError):
+    """A device method needs a connection that is not open."""
+
+
+class DeviceNotConfiguredError(DeviceError):
+    """A hardware device was asked for but the rig names no port or file for it."""

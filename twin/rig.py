@@ -1,0 +1,235 @@
+"""The rig: one session, one clock, multi-rate sampling, recording and visualization.
+
+The rig schedules each device at its declared rate. On sim time a reading sampled at t reaches the
+controller and the recording at t + latency (as dm_control's observable delay); on hardware the
+latency has already happened on the wire. The rig imports no backend.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from twin import units
+from twin.interface.backend import Backend
+from twin.interface.devices import FINGER_LABELS, MOTOR_LABELS, HandCommand, HandReading
+from twin.recording import FieldSpec, RunWriter, StreamSpec
+
+
+class Controller(Protocol):
+    """An experiment procedure: hand reading in, command (or None to keep the last) out."""
+
+    phase: str
+
+    def __call__(self, reading: HandReading) -> HandCommand | None: ...
+
+
+class SceneViewer(Protocol):
+    """What the rig needs of a visualizer (twin.viz.rerun_log.RunRecording fits)."""
+
+    def log_scalars(
+        self, stream: str, t_s: float, values: dict, labels: dict | None = None
+    ) -> None: ...
+
+
+def hand_stream_spec(rate_hz: float, velocity_unit: str) -> StreamSpec:
+    """The recorded hand stream: raw readings beside their physical conversion."""
+    return StreamSpec(
+        name="hand",
+        rate_hz=rate_hz,
+        description="BH8 feedback, motors F1, F2, F3, S (raw) and eqs. 1-3 conversion",
+        fields={
+            "position_counts": FieldSpec(unit="counts", shape=(4,), dtype="int32", kind="raw"),
+            "velocity_counts": FieldSpec(unit=velocity_unit, shape=(4,), dtype="int32", kind="raw"),
+            "strain_counts": FieldSpec(unit="counts", shape=(3,), dtype="int32", kind="raw"),
+            "position_rad": FieldSpec(unit="rad", shape=(4,), kind="physical"),
+            "velocity_rad_s": FieldSpec(unit="rad/s", shape=(4,), kind="physical"),
+            "torque_nm": FieldSpec(unit="N*m", shape=(3,), kind="physical"),
+            "force_kg": FieldSpec(unit="kg", shape=(3,), kind="physical"),
+        },
+    )
+
+
+def command_stream_spec(rate_hz: float) -> StreamSpec:
+    """The recorded commands, as applied after the device's clipping."""
+    return StreamSpec(
+        name="command",
+        rate_hz=rate_hz,
+        description="set points sent to the hand and the procedure phase",
+        fields={
+            "position_counts": FieldSpec(unit="counts", shape=(4,), kind="command"),
+            "max_velocity_counts_s": FieldSpec(unit="counts/s", kind="command"),
+            "phase": FieldSpec(unit="1", dtype="int32", kind="status"),
+        },
+    )
+
+
+def truth_stream_spec(rate_hz: float) -> StreamSpec:
+    """What only a simulator knows, recorded for checking the science against."""
+    return StreamSpec(
+        name="truth",
+        rate_hz=rate_hz,
+        description="simulator ground truth at the hand's sample instants",
+        fields={
+            "inner_rad": FieldSpec(unit="rad", shape=(3,), kind="truth"),
+            "outer_rad": FieldSpec(unit="rad", shape=(3,), kind="truth"),
+            "spread_rad": FieldSpec(unit="rad", kind="truth"),
+            "distal_torque_nm": FieldSpec(unit="N*m", shape=(3,), kind="truth"),
+            "broken_away": FieldSpec(unit="1", shape=(3,), dtype="bool", kind="truth"),
+            "tip_contact_force_n": FieldSpec(unit="N", shape=(3,), kind="truth"),
+        },
+    )
+
+
+@dataclass(order=True)
+class _Event:
+    t_s: float
+    order: int
+    kind: str = field(compare=False)
+    payload: object = field(compare=False, default=None)
+
+
+@dataclass
+class RigResult:
+    """How a run went: samples delivered per stream and the final phase."""
+
+    samples: dict[str, int]
+    final_phase: str
+    duration_s: float
+
+
+class Rig:
+    """Runs a controller against a backend for a duration, recording every stream."""
+
+    def __init__(
+        self,
+        backend: Backend,
+        writer: RunWriter | None = None,
+        viewer: SceneViewer | None = None,
+        scene_logger: Callable[[float], None] | None = None,
+        scene_rate_hz: float = 30.0,
+        phases: tuple[str, ...] = ("idle",),
+    ) -> None:
+        self.backend = backend
+        self.writer = writer
+        self.viewer = viewer
+        self.scene_logger = scene_logger
+        self.scene_rate_hz = scene_rate_hz
+        self.phases = phases
+        self._queue: list[_Event] = []
+        self._order = 0
+        self.samples: dict[str, int] = {}
+        hand_spec = backend.hand.spec
+        self._velocity_sample_time_s = getattr(
+            getattr(backend.hand, "config", None),
+            "velocity_sample_time_s",
+            units.VELOCITY_SAMPLE_TIME_S,
+        )
+        if writer is not None:
+            writer.add_stream(
+                hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit)
+            )
+            writer.add_stream(command_stream_spec(hand_spec.rate_hz))
+            if backend.ground_truth() is not None:
+                writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
+
+    def _push(self, t_s: float, kind: str, payload: object = None) -> None:
+        self._order += 1
+        heapq.heappush(self._queue, _Event(t_s, self._order, kind, payload))
+
+    def run(
+        self,
+        controller: Controller,
+        duration_s: float,
+        progress: Callable[[float], None] | None = None,
+    ) -> RigResult:
+        """Sample, deliver and control until duration_s on the run clock."""
+        clock = self.backend.clock
+        hand = self.backend.hand
+        period = hand.spec.period_s
+        latency = hand.spec.latency_s if self.backend.is_simulated else 0.0
+        n_hand = int(math.floor(duration_s * hand.spec.rate_hz + 1e-9))
+        for k in range(n_hand + 1):
+            self._push(k * period, "sample_hand")
+        if self.scene_logger is not None:
+            n_scene = int(math.floor(duration_s * self.scene_rate_hz + 1e-9))
+            for k in range(n_scene + 1):
+                self._push(k / self.scene_rate_hz, "scene")
+        while self._queue:
+            event = heapq.heappop(self._queue)
+            if event.t_s > duration_s + 1e-9:
+                break
+            clock.advance_to(event.t_s)
+            if event.kind == "sample_hand":
+                reading = hand.read()
+                truth = self.backend.ground_truth()
+                self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
+            elif event.kind == "deliver_hand":
+                reading, truth = event.payload
+                self._deliver(reading, truth, controller)
+                if progress is not None:
+                    progress(event.t_s)
+            elif event.kind == "scene":
+                self.scene_logger(event.t_s)
+        return RigResult(dict(self.samples), controller.phase, duration_s)
+
+    def _deliver(self, reading: HandReading, truth: dict | None, controller: Controller) -> None:
+        physical = units.hand_reading_to_physical(
+            reading.position_counts,
+            reading.velocity_counts,
+            reading.strain_counts,
+            self._velocity_sample_time_s,
+        )
+        row = {
+            "position_counts": reading.position_counts,
+            "velocity_counts": reading.velocity_counts,
+            "strain_counts": reading.strain_counts,
+            **physical,
+        }
+        self._record("hand", reading.t_s, row)
+        if truth is not None:
+            self._record("truth", reading.t_s, truth)
+        command = controller(reading)
+        if command is not None:
+            applied = self.backend.hand.command(command)
+            self._record(
+                "command",
+                reading.t_s,
+                {
+                    "position_counts": applied.position_counts,
+                    "max_velocity_counts_s": applied.max_velocity_counts_s,
+                    "phase": self.phases.index(controller.phase)
+                    if controller.phase in self.phases
+                    else -1,
+                },
+            )
+        if self.viewer is not None:
+            self.viewer.log_scalars(
+                "hand",
+                reading.t_s,
+                {
+                    "position_counts": reading.position_counts[:3],
+                    "velocity_counts": reading.velocity_counts[:3],
+                    "torque_nm": physical["torque_nm"],
+                    "force_kg": physical["force_kg"],
+                },
+                labels={
+                    "position_counts": FINGER_LABELS,
+                    "velocity_counts": FINGER_LABELS,
+                    "torque_nm": FINGER_LABELS,
+                    "force_kg": FINGER_LABELS,
+                },
+            )
+
+    def _record(self, stream: str, t_s: float, values: dict) -> None:
+        self.samples[stream] = self.samples.get(stream, 0) + 1
+        if self.writer is not None:
+            self.writer.append(stream, t_s, {k: np.asarray(v) for k, v in values.items()})
+
+
+__all__ = ["MOTOR_LABELS", "Controller", "Rig", "RigResult"]

@@ -1,0 +1,188 @@
+"""The foam library: flexcomp foam objects described by parameters and validated up front.
+
+An object is a FoamParams; the scene composes it into MJCF with dm_control.mjcf (no copied XML).
+Stiffness classes follow flexible polyurethane foams (soft ~10-20 kPa, medium ~30-60 kPa,
+firm ~100-300 kPa Young's modulus; Poisson ratio ~0.2-0.35; density ~20-60 kg/m^3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any, Literal
+
+from twin.interface.errors import ConfigError
+
+Shape = Literal["block", "cylinder", "sphere"]
+Dof = Literal["trilinear", "quadratic", "full"]
+SHAPES: tuple[str, ...] = ("block", "cylinder", "sphere")
+DOFS: tuple[str, ...] = ("trilinear", "quadratic", "full")
+FLEXCOMP_TYPE = {"block": "box", "cylinder": "cylinder", "sphere": "ellipsoid"}
+
+MAX_HALF_WIDTH_M = 0.045
+"""Largest footprint half-width that clears the finger roots (inner joints at |y| = 50 mm, link
+palmar face 12.5 mm inboard: models/barrett_mjcf/README.md)."""
+MAX_HEIGHT_M = 0.110
+"""Tallest object the closed fingers still wrap (fingertips reach ~150 mm above the wrist)."""
+MIN_SIZE_M = 0.015
+
+
+@dataclass(frozen=True, kw_only=True)
+class FoamParams:
+    """A foam object: geometry, material and discretization. Sizes are full extents (m)."""
+
+    name: str
+    shape: Shape
+    size_m: tuple[float, float, float]
+    young_pa: float
+    poisson: float
+    damping: float = 0.002
+    """Flex elasticity damping (MuJoCo <elasticity damping>, s): a Kelvin-Voigt time constant."""
+    density_kg_m3: float = 30.0
+    resolution: int = 4
+    """Vertices per axis of the flexcomp grid."""
+    dof: Dof = "trilinear"
+    friction: float = 0.8
+    stiffness_class: str = ""
+    rgba: tuple[float, float, float, float] = (0.95, 0.75, 0.35, 1.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    @property
+    def volume_m3(self) -> float:
+        """Volume of the ideal shape (m^3)."""
+        x, y, z = self.size_m
+        if self.shape == "block":
+            return x * y * z
+        if self.shape == "cylinder":
+            return math.pi * (x / 2) * (y / 2) * z
+        return 4.0 / 3.0 * math.pi * (x / 2) * (y / 2) * (z / 2)
+
+    @property
+    def mass_kg(self) -> float:
+        """Total mass (kg)."""
+        return self.density_kg_m3 * self.volume_m3
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain-JSON parameters (for `twin objects --json` and run metadata)."""
+        d = asdict(self)
+        d["size_m"] = list(self.size_m)
+        d["rgba"] = list(self.rgba)
+        d["mass_kg"] = self.mass_kg
+        return d
+
+    def with_overrides(self, **overrides: Any) -> FoamParams:
+        """A copy with some parameters replaced (validated); None values are ignored."""
+        given = {k: v for k, v in overrides.items() if v is not None}
+        unknown = set(given) - {f.name for f in fields(self)}
+        if unknown:
+            raise ConfigError(f"unknown foam parameter(s): {', '.join(sorted(unknown))}")
+        return replace(self, **given)
+
+
+def _fail(params: FoamParams, message: str) -> None:
+    raise ConfigError(f"foam '{params.name}': {message}")
+
+
+def validate(p: FoamParams) -> None:
+    """Raise ConfigError (one line) for a physically invalid or ill-fitting object."""
+    finite = all(
+        math.isfinite(v) for v in (*p.size_m, p.young_pa, p.poisson, p.damping, p.density_kg_m3)
+    )
+    if not finite:
+        _fail(p, "parameters must be finite numbers")
+    if p.shape not in SHAPES:
+        _fail(p, f"unknown shape '{p.shape}' (choose from {', '.join(SHAPES)})")
+    if p.dof not in DOFS:
+        _fail(p, f"unknown discretization '{p.dof}' (choose from {', '.join(DOFS)})")
+    if not p.young_pa > 0:
+        _fail(p, f"Young's modulus must be > 0 Pa, got {p.young_pa:g}")
+    if not 0.0 <= p.poisson < 0.5:
+        _fail(p, f"Poisson ratio must be in [0, 0.5), got {p.poisson:g}")
+    if p.damping < 0:
+        _fail(p, f"damping must be >= 0, got {p.damping:g}")
+    if not p.density_kg_m3 > 0:
+        _fail(p, f"density must be > 0 kg/m^3, got {p.density_kg_m3:g}")
+    if len(p.size_m) != 3:
+        _fail(p, "size_m needs 3 extents (x, y, z)")
+    if min(p.size_m) < MIN_SIZE_M:
+        _fail(p, f"every extent must be >= {MIN_SIZE_M * 1e3:.0f} mm, got {_mm(p.size_m)}")
+    if max(p.size_m[0], p.size_m[1]) / 2 > MAX_HALF_WIDTH_M or p.size_m[2] > MAX_HEIGHT_M:
+        _fail(
+            p,
+            f"{_mm(p.size_m)} does not fit in the hand (footprint <= "
+            f"{2 * MAX_HALF_WIDTH_M * 1e3:.0f} mm, height <= {MAX_HEIGHT_M * 1e3:.0f} mm)",
+        )
+    if not 3 <= p.resolution <= 12:
+        _fail(p, f"resolution must be 3-12 vertices per axis, got {p.resolution}")
+    if not 0 < p.friction <= 3:
+        _fail(p, f"friction must be in (0, 3], got {p.friction:g}")
+
+
+def _mm(size_m: tuple[float, ...]) -> str:
+    return " x ".join(f"{s * 1e3:.0f}" for s in size_m) + " mm"
+
+
+LIBRARY: dict[str, FoamParams] = {
+    p.name: p
+    for p in (
+        FoamParams(
+            name="block",
+            shape="block",
+            size_m=(0.060, 0.060, 0.070),
+            young_pa=40e3,
+            poisson=0.3,
+            stiffness_class="medium",
+        ),
+        FoamParams(
+            name="soft_block",
+            shape="block",
+            size_m=(0.060, 0.060, 0.070),
+            young_pa=15e3,
+            poisson=0.25,
+            density_kg_m3=22.0,
+            stiffness_class="soft",
+        ),
+        FoamParams(
+            name="firm_block",
+            shape="block",
+            size_m=(0.060, 0.060, 0.070),
+            young_pa=150e3,
+            poisson=0.3,
+            density_kg_m3=50.0,
+            stiffness_class="firm",
+            rgba=(0.35, 0.55, 0.85, 1.0),
+        ),
+        FoamParams(
+            name="cylinder",
+            shape="cylinder",
+            size_m=(0.065, 0.065, 0.070),
+            young_pa=25e3,
+            poisson=0.3,
+            stiffness_class="soft",
+            rgba=(0.9, 0.45, 0.35, 1.0),
+        ),
+        FoamParams(
+            name="sphere",
+            shape="sphere",
+            size_m=(0.070, 0.070, 0.070),
+            young_pa=80e3,
+            poisson=0.3,
+            density_kg_m3=40.0,
+            stiffness_class="firm",
+            rgba=(0.5, 0.75, 0.45, 1.0),
+        ),
+    )
+}
+DEFAULT_OBJECT = "block"
+
+
+def get_object(name: str) -> FoamParams:
+    """Look up a library object; ConfigError names the choices."""
+    try:
+        return LIBRARY[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown object '{name}' (choose from {', '.join(sorted(LIBRARY))})"
+        ) from None

@@ -52,9 +52,7 @@ class CompressProfile:
         if self.amplitude_counts < 0 or self.frequency_hz <= 0 or self.balance_s < 0:
             raise ConfigError("compress: amplitude >= 0, frequency > 0 and balance_s >= 0 required")
         if self.offset_counts + self.amplitude_counts > 4000:
-            raise ConfigError(
-                "compress: offset + amplitude above 4000 counts would crush the object"
-            )
+            raise ConfigError("compress: offset + amplitude above 4000 counts would crush the object")
 
     def to_json(self) -> dict[str, float]:
         """Plain-JSON constants for run metadata."""
@@ -120,9 +118,7 @@ class CompressController:
     def _compress(self, t_s: float) -> np.ndarray:
         p = self.profile
         t = t_s - self._t_phase
-        wave = p.offset_counts + p.amplitude_counts * math.sin(
-            2 * math.pi * p.frequency_hz * t + p.phase_rad
-        )
+        wave = p.offset_counts + p.amplitude_counts * math.sin(2 * math.pi * p.frequency_hz * t + p.phase_rad)
         return self.grasp_counts + wave
 
     def _enter(self, phase: str, t_s: float) -> None:

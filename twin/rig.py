@@ -32,9 +32,7 @@ class Controller(Protocol):
 class SceneViewer(Protocol):
     """What the rig needs of a visualizer (twin.viz.rerun_log.RunRecording fits)."""
 
-    def log_scalars(
-        self, stream: str, t_s: float, values: dict, labels: dict | None = None
-    ) -> None: ...
+    def log_scalars(self, stream: str, t_s: float, values: dict, labels: dict | None = None) -> None: ...
 
 
 def hand_stream_spec(rate_hz: float, velocity_unit: str) -> StreamSpec:
@@ -131,9 +129,7 @@ class Rig:
             units.VELOCITY_SAMPLE_TIME_S,
         )
         if writer is not None:
-            writer.add_stream(
-                hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit)
-            )
+            writer.add_stream(hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit))
             writer.add_stream(command_stream_spec(hand_spec.rate_hz))
             if backend.ground_truth() is not None:
                 writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
@@ -153,11 +149,11 @@ class Rig:
         hand = self.backend.hand
         period = hand.spec.period_s
         latency = hand.spec.latency_s if self.backend.is_simulated else 0.0
-        n_hand = int(math.floor(duration_s * hand.spec.rate_hz + 1e-9))
+        n_hand = math.floor(duration_s * hand.spec.rate_hz + 1e-9)
         for k in range(n_hand + 1):
             self._push(k * period, "sample_hand")
         if self.scene_logger is not None:
-            n_scene = int(math.floor(duration_s * self.scene_rate_hz + 1e-9))
+            n_scene = math.floor(duration_s * self.scene_rate_hz + 1e-9)
             for k in range(n_scene + 1):
                 self._push(k / self.scene_rate_hz, "scene")
         while self._queue:
@@ -203,9 +199,7 @@ class Rig:
                 {
                     "position_counts": applied.position_counts,
                     "max_velocity_counts_s": applied.max_velocity_counts_s,
-                    "phase": self.phases.index(controller.phase)
-                    if controller.phase in self.phases
-                    else -1,
+                    "phase": self.phases.index(controller.phase) if controller.phase in self.phases else -1,
                 },
             )
         if self.viewer is not None:

@@ -50,15 +50,13 @@ class Device(ABC):
 
     def _require_connection(self) -> None:
         if not self._connected:
-            raise DeviceNotConnectedError(
-                f"{self.spec.name} is not connected; call connect() first"
-            )
+            raise DeviceNotConnectedError(f"{self.spec.name} is not connected; call connect() first")
 
     @abstractmethod
     def _connect(self) -> None: ...
 
-    def _disconnect(self) -> None:
-        """Backend hook; nothing by default."""
+    @abstractmethod
+    def _disconnect(self) -> None: ...
 
     def __enter__(self) -> Self:
         self.connect()
@@ -92,9 +90,7 @@ class HandCommand:
     def __post_init__(self) -> None:
         pos = np.asarray(self.position_counts, dtype=np.float64)
         if pos.shape != (4,):
-            raise ValueError(
-                f"position_counts must have 4 entries (F1, F2, F3, S), got {pos.shape}"
-            )
+            raise ValueError(f"position_counts must have 4 entries (F1, F2, F3, S), got {pos.shape}")
         object.__setattr__(self, "position_counts", pos)
 
 

@@ -30,9 +30,7 @@ class ChannelSpec:
     def __post_init__(self) -> None:
         lo, hi = self.saturation
         if not lo < hi:
-            raise ConfigError(
-                f"saturation must be (low, high) with low < high, got {self.saturation}"
-            )
+            raise ConfigError(f"saturation must be (low, high) with low < high, got {self.saturation}")
         if self.noise_std < 0 or self.quantization < 0:
             raise ConfigError("noise_std and quantization must be >= 0")
         if self.labels and self.shape and len(self.labels) != self.shape[0]:

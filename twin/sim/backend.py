@@ -38,9 +38,7 @@ class SimBackend(Backend):
 
     name = "sim"
 
-    def __init__(
-        self, foam: FoamParams | None, hand_config: HandConfig | None = None, seed: int = 0
-    ) -> None:
+    def __init__(self, foam: FoamParams | None, hand_config: HandConfig | None = None, seed: int = 0) -> None:
         self.foam = foam
         self.seed = seed
         self.world = SimWorld(build_model(foam))

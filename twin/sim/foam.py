@@ -87,9 +87,7 @@ def _fail(params: FoamParams, message: str) -> None:
 
 def validate(p: FoamParams) -> None:
     """Raise ConfigError (one line) for a physically invalid or ill-fitting object."""
-    finite = all(
-        math.isfinite(v) for v in (*p.size_m, p.young_pa, p.poisson, p.damping, p.density_kg_m3)
-    )
+    finite = all(math.isfinite(v) for v in (*p.size_m, p.young_pa, p.poisson, p.damping, p.density_kg_m3))
     if not finite:
         _fail(p, "parameters must be finite numbers")
     if p.shape not in SHAPES:
@@ -183,6 +181,4 @@ def get_object(name: str) -> FoamParams:
     try:
         return LIBRARY[name]
     except KeyError:
-        raise ConfigError(
-            f"unknown object '{name}' (choose from {', '.join(sorted(LIBRARY))})"
-        ) from None
+        raise ConfigError(f"unknown object '{name}' (choose from {', '.join(sorted(LIBRARY))})") from None

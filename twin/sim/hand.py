@@ -28,9 +28,7 @@ class SimHand(Hand):
         self._spec = hand_device_spec(config)
         self._rng = rng
         m = world.model
-        self._act = np.array(
-            [m.actuator(n).id for n in (*FINGER_ACTUATORS, SPREAD_ACTUATOR)], dtype=int
-        )
+        self._act = np.array([m.actuator(n).id for n in (*FINGER_ACTUATORS, SPREAD_ACTUATOR)], dtype=int)
         joints = ("f1_drive", "f2_drive", "f3_drive", "f1_spread")
         self._qpos = np.array([m.joint(j).qposadr[0] for j in joints])
         self._dof = np.array([m.joint(j).dofadr[0] for j in joints])
@@ -48,13 +46,19 @@ class SimHand(Hand):
         self._target_rad[:] = self.world.data.qpos[self._qpos]
         self.world.data.ctrl[self._act] = self._target_rad
 
+    def _disconnect(self) -> None:
+        self.idle_state()
+
+    def idle_state(self) -> None:
+        """Hold the links where they are (what T leaves on a non-back-drivable hand)."""
+        self._hold = True
+        self._target_rad = self.world.data.qpos[self._qpos].copy()
+
     def command(self, command: HandCommand) -> HandCommand:
         """Set point in counts, clipped to the firmware range; slewed at the requested velocity."""
         self._require_connection()
         counts = np.clip(command.position_counts, 0.0, MAX_COUNTS)
-        velocity = float(
-            np.clip(command.max_velocity_counts_s, 1.0, self.config.max_velocity_counts_s)
-        )
+        velocity = float(np.clip(command.max_velocity_counts_s, 1.0, self.config.max_velocity_counts_s))
         self._target_rad = counts * COUNTS_TO_RAD
         self._slew_rad_s = velocity * COUNTS_TO_RAD
         self._hold = False
@@ -63,8 +67,7 @@ class SimHand(Hand):
     def idle(self) -> None:
         """T: motors stop driving. The BH8's worm drives are not back-drivable, so links hold."""
         self._require_connection()
-        self._hold = True
-        self._target_rad = self.world.data.qpos[self._qpos].copy()
+        self.idle_state()
 
     def _slew(self, data: mujoco.MjData) -> None:
         if self._hold:

@@ -50,8 +50,4 @@ class SimWorld:
 
     def warnings(self) -> dict[str, int]:
         """MuJoCo warnings raised so far, by name (empty when the run is clean)."""
-        return {
-            mujoco.mjtWarning(i).name: int(w.number)
-            for i, w in enumerate(self.data.warning)
-            if w.number
-        }
+        return {mujoco.mjtWarning(i).name: int(w.number) for i, w in enumerate(self.data.warning) if w.number}

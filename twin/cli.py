@@ -1,0 +1,262 @@
+"""The `twin` command line: objects, run, info, view.
+
+Bad input ends with one line on stderr and exit status 2; nothing is simulated or written first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from twin.interface.errors import TwinError
+
+EXIT_USAGE = 2
+
+
+def _fail(message: str) -> int:
+    print(f"twin: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("object overrides (any library parameter)")
+    g.add_argument("--young", type=float, metavar="PA", help="Young's modulus (Pa)")
+    g.add_argument("--poisson", type=float, metavar="NU", help="Poisson ratio, in [0, 0.5)")
+    g.add_argument("--damping", type=float, metavar="S", help="elasticity damping (s)")
+    g.add_argument("--density", type=float, metavar="KG_M3", help="density (kg/m^3)")
+    g.add_argument("--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
+    g.add_argument("--resolution", type=int, metavar="N", help="flexcomp vertices per axis")
+    g.add_argument("--dof", choices=("trilinear", "quadratic", "full"), help="foam discretization")
+    g.add_argument("--friction", type=float, help="sliding friction coefficient")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `twin`."""
+    parser = argparse.ArgumentParser(
+        prog="twin", description="Barrett BH8 digital twin: simulate, record and view foam compression runs."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("objects", help="list the foam library")
+    p.add_argument("--json", action="store_true", help="print a JSON list of objects")
+
+    p = sub.add_parser("run", help="run an experiment")
+    run_sub = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
+    c.add_argument("--object", default="block", help="library object (see `twin objects`)")
+    c.add_argument("--backend", choices=("sim", "hardware"), default="sim")
+    c.add_argument("--duration", type=float, default=10.0, metavar="S", help="run length (s)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
+    c.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_foam_overrides(c)
+
+    p = sub.add_parser("info", help="summarize a run directory")
+    p.add_argument("run_dir", type=Path, metavar="DIR")
+    p.add_argument("--json", action="store_true")
+
+    p = sub.add_parser("view", help="open a run in the Rerun viewer")
+    p.add_argument("run_dir", type=Path, metavar="DIR")
+    return parser
+
+
+def cmd_objects(args: argparse.Namespace) -> int:
+    """`twin objects`: the foam library."""
+    from twin.sim.foam import LIBRARY
+
+    if args.json:
+        print(json.dumps([p.to_json() for p in LIBRARY.values()], indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title="Foam library")
+    for col in ("name", "shape", "size (mm)", "E (kPa)", "nu", "class", "density", "mass (g)", "dof"):
+        table.add_column(col)
+    for p in LIBRARY.values():
+        table.add_row(
+            p.name,
+            p.shape,
+            " x ".join(f"{s * 1e3:.0f}" for s in p.size_m),
+            f"{p.young_pa / 1e3:g}",
+            f"{p.poisson:g}",
+            p.stiffness_class,
+            f"{p.density_kg_m3:g}",
+            f"{p.mass_kg * 1e3:.1f}",
+            f"{p.dof} {p.resolution}^3",
+        )
+    Console().print(table)
+    return 0
+
+
+def _foam_from_args(args: argparse.Namespace):
+    from twin.sim.foam import get_object
+
+    size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
+    return get_object(args.object).with_overrides(
+        young_pa=args.young,
+        poisson=args.poisson,
+        damping=args.damping,
+        density_kg_m3=args.density,
+        size_m=size,
+        resolution=args.resolution,
+        dof=args.dof,
+        friction=args.friction,
+    )
+
+
+def cmd_run_compress(args: argparse.Namespace) -> int:
+    """`twin run compress`: validate, run, report."""
+    from experiments.compress import PHASES, CompressController, CompressProfile
+    from twin.session import default_run_dir, run_experiment
+
+    foam = _foam_from_args(args)
+    run_dir = args.out or default_run_dir("compress", foam.name)
+    if args.backend == "sim":
+        from twin.sim.backend import SimBackend
+
+        backend = SimBackend(foam, seed=args.seed)
+    else:
+        from hardware.backend import HardwareBackend
+
+        backend = HardwareBackend()
+    profile = CompressProfile()
+    experiment = {"name": "compress", "object": foam.name, "profile": profile.to_json()}
+    outcome = _with_progress(
+        args.duration,
+        not args.no_progress,
+        lambda progress: run_experiment(
+            backend=backend,
+            controller=CompressController(profile),
+            phases=PHASES,
+            duration_s=args.duration,
+            run_dir=run_dir,
+            experiment=experiment,
+            progress=progress,
+        ),
+    )
+    print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    print(f"view it: twin view {outcome.run_dir}")
+    return 0
+
+
+def _with_progress(duration_s: float, show: bool, job):  # noqa: ANN001
+    if not show:
+        return job(None)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    columns = (
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.1f}/{task.total:.1f} s"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, transient=False) as bar:
+        task = bar.add_task("run time", total=duration_s)
+        return job(lambda t_s: bar.update(task, completed=min(t_s, duration_s)))
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """`twin info DIR`: streams, sample counts, rates, duration, metadata."""
+    from twin.recording import open_run
+
+    run = open_run(args.run_dir)
+    summary = run.summary()
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "path": str(run.path),
+                    "status": run.status,
+                    "streams": summary,
+                    "truncated": sorted(run.truncated),
+                    "metadata": run.metadata,
+                },
+                indent=2,
+                default=str,
+            )
+        )
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    console.print(f"[bold]{run.path}[/bold]  status: {run.status}")
+    meta = run.metadata
+    for key in ("backend", "experiment", "duration_s", "seed"):
+        if key in meta:
+            value = (
+                meta[key]["name"]
+                if key == "experiment" and isinstance(value := meta[key], dict)
+                else meta[key]
+            )
+            console.print(f"  {key}: {value}")
+    if meta.get("object"):
+        obj = meta["object"]
+        console.print(
+            f"  object: {obj['name']} ({obj['shape']}, E = {obj['young_pa']:g} Pa, nu = {obj['poisson']:g})"
+        )
+    table = Table(title="streams")
+    for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)", "fields"):
+        table.add_column(col)
+    for s in summary:
+        fields = ", ".join(f"{name} [{f['unit']}, {f['kind']}]" for name, f in s["fields"].items())
+        table.add_row(
+            s["name"],
+            str(s["samples"]),
+            f"{s['rate_hz']:g}",
+            f"{s['measured_rate_hz']:.2f}",
+            f"{s['duration_s']:.2f}",
+            fields,
+        )
+    console.print(table)
+    if run.truncated:
+        console.print(f"[yellow]truncated streams (crash recovery): {', '.join(sorted(run.truncated))}")
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """`twin view DIR`: the Rerun viewer, or how to get one when there is no display."""
+    from twin.session import RRD_NAME
+
+    rrd = args.run_dir / RRD_NAME
+    if not rrd.is_file():
+        return _fail(f"no Rerun recording at {rrd}")
+    has_display = (
+        sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    )
+    if not has_display:
+        print(f"No display here. Copy {rrd} to a machine with one and run `rerun {rrd.name}`,")
+        print(f"or serve it to a browser from here: `rerun --serve-web {rrd}`.")
+        return 0
+    viewer = shutil.which("rerun")
+    cmd = [viewer, str(rrd)] if viewer else [sys.executable, "-m", "rerun", str(rrd)]
+    return subprocess.call(cmd)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `twin` console script."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    args = build_parser().parse_args(argv)
+    handlers = {"objects": cmd_objects, "info": cmd_info, "view": cmd_view}
+    try:
+        if args.command == "run":
+            return cmd_run_compress(args)
+        return handlers[args.command](args)
+    except TwinError as exc:
+        return _fail(str(exc))
+    except (FileExistsError, PermissionError) as exc:
+        return _fail(str(exc))
+    except KeyboardInterrupt:
+        print("twin: interrupted; the run directory is marked 'interrupted'", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,125 @@
+"""One experiment run end to end: validate, connect, record, visualize, close.
+
+Everything that can be checked is checked before the run directory is created, so bad input leaves
+nothing behind; once the directory exists, run.json says whether the run completed, failed or was
+interrupted, so nothing half-written looks complete.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from twin import __version__, units
+from twin.interface.backend import Backend
+from twin.interface.errors import ConfigError
+from twin.recording import RunWriter
+from twin.rig import Rig, RigResult
+
+RRD_NAME = "run.rrd"
+
+
+@dataclass
+class RunOutcome:
+    """Where the run went and how it ended."""
+
+    run_dir: Path
+    rrd_path: Path
+    result: RigResult
+    status: str
+
+
+def default_run_dir(experiment: str, object_name: str) -> Path:
+    """runs/<experiment>-<object>-<UTC timestamp>."""
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{experiment}-{object_name}-{stamp}"
+
+
+def check_output_dir(run_dir: Path) -> None:
+    """Fail (one line) unless run_dir can be created fresh, before anything is simulated."""
+    if run_dir.exists():
+        if not run_dir.is_dir():
+            raise ConfigError(f"--out {run_dir}: exists and is not a directory")
+        if any(run_dir.iterdir()):
+            raise ConfigError(f"--out {run_dir}: directory is not empty; choose a new one")
+        parent = run_dir
+    else:
+        parent = run_dir.parent
+        while not parent.exists():
+            parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise ConfigError(f"--out {run_dir}: cannot write in {parent}")
+
+
+def calibration_tables() -> dict[str, Any]:
+    """The conversion constants in force for this run (eqs. 1-3 and encoder scales)."""
+    return {
+        "strain_torque_eq2": {"offset_nm": units.SG_TORQUE_OFFSET_NM, "slope_nm": units.SG_TORQUE_SLOPE_NM},
+        "strain_force_eq3": {"offset_kg": units.SG_FORCE_OFFSET_KG, "slope_kg": units.SG_FORCE_SLOPE_KG},
+        "finger_full_counts": units.FINGER_FULL_COUNTS,
+        "finger_full_inner_rad": units.FINGER_FULL_INNER_RAD,
+        "spread_full_counts": units.SPREAD_FULL_COUNTS,
+    }
+
+
+def run_experiment(
+    *,
+    backend: Backend,
+    controller: Any,
+    phases: tuple[str, ...],
+    duration_s: float,
+    run_dir: Path,
+    experiment: dict[str, Any],
+    progress: Callable[[float], None] | None = None,
+    argv: list[str] | None = None,
+) -> RunOutcome:
+    """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd."""
+    from twin.viz.rerun_log import RunRecording
+
+    if not duration_s > 0:
+        raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
+    check_output_dir(run_dir)
+    backend.connect()
+    try:
+        metadata = {
+            "software": {"barrett_twin": __version__, "python": platform.python_version()},
+            "command_line": argv if argv is not None else sys.argv,
+            "experiment": experiment,
+            "duration_s": duration_s,
+            "phases": list(phases),
+            "calibration": calibration_tables(),
+            **backend.metadata(),
+        }
+        rrd_path = run_dir / RRD_NAME
+        with RunWriter(run_dir, metadata) as writer:
+            recording = RunRecording(rrd_path, recording_id=run_dir.name)
+            try:
+                scene_logger = _scene_logger(backend, recording)
+                rig = Rig(backend, writer, recording, scene_logger, phases=phases)
+                result = rig.run(controller, duration_s, progress)
+                warnings = getattr(getattr(backend, "world", None), "warnings", dict)()
+                writer.update_metadata(final_phase=result.final_phase, mujoco_warnings=warnings)
+            finally:
+                recording.close()
+        return RunOutcome(run_dir, rrd_path, result, "complete")
+    finally:
+        backend.disconnect()
+
+
+def _scene_logger(backend: Backend, recording: Any) -> Callable[[float], None] | None:
+    """3-D scene logging where the backend has a MuJoCo world (the sim)."""
+    world = getattr(backend, "world", None)
+    if world is None:
+        return None
+    recording.log_model(world.model)
+
+    def log(t_s: float) -> None:
+        recording.log_scene(t_s, world.data)
+
+    return log

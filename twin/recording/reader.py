@@ -1,0 +1,174 @@
+"""Read a run directory back, with no writer state, including runs whose writer was killed.
+
+A stream file cut mid-batch (SIGKILL, power loss) yields every complete record batch; the stream
+is then listed in ``Run.truncated``. A run whose writer never closed keeps status "running".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from twin.recording.schema import TIME_FIELD, StreamSpec, arrow_schema, to_numpy
+from twin.recording.writer import FORMAT, FORMAT_VERSION, RUN_FILE, STREAM_SUFFIX, STREAMS_DIR
+
+
+class RunFormatError(ValueError):
+    """The directory is not a readable barrett-twin run (missing/corrupt run.json or stream)."""
+
+
+@dataclass
+class StreamData:
+    """One stream read back: timestamps and per-field arrays of shape (n, *shape)."""
+
+    spec: StreamSpec
+    t_s: np.ndarray
+    fields: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """The ``t_s`` column or a field; KeyError lists the available names."""
+        if name == TIME_FIELD:
+            return self.t_s
+        if name not in self.fields:
+            raise KeyError(
+                f"stream {self.spec.name!r} has no field {name!r}; available: {[TIME_FIELD, *self.fields]}"
+            )
+        return self.fields[name]
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def measured_rate_hz(self) -> float:
+        """Mean sample rate (n-1)/(t[-1]-t[0]); nan with fewer than 2 samples or zero duration."""
+        n = len(self.t_s)
+        duration = float(self.t_s[-1] - self.t_s[0]) if n else 0.0
+        return (n - 1) / duration if n >= 2 and duration > 0 else math.nan
+
+
+def _read_batches(path: Path, schema: pa.Schema) -> tuple[list[pa.RecordBatch], bool]:
+    """Every complete record batch in an Arrow stream file, and whether it ended mid-message."""
+    data = path.read_bytes()
+    if not data:
+        return [], False  # the writer never wrote a batch (the schema goes out with the first)
+    try:
+        reader = pa.ipc.open_stream(pa.BufferReader(data))
+    except (pa.ArrowInvalid, OSError):
+        return [], True  # partial schema message
+    if not reader.schema.equals(schema):
+        raise RunFormatError(f"{path}: schema does not match the stream spec in run.json")
+    batches = []
+    while True:
+        try:
+            batches.append(reader.read_next_batch())
+        except StopIteration:
+            return batches, False
+        except (pa.ArrowInvalid, OSError, EOFError):
+            return batches, True
+
+
+class Run:
+    """A run directory read back with no writer state."""
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+        self.info: dict = _load_info(self.path)
+        self.metadata: dict = self.info.get("metadata", {})
+        self.status: str = self.info["status"]
+        self.streams: dict[str, StreamSpec] = _load_specs(self.info, self.path)
+        self._data: dict[str, StreamData] = {}
+        self._truncated: set[str] = set()
+
+    @property
+    def truncated(self) -> set[str]:
+        """Streams whose file ended in a partial batch (reads every stream once)."""
+        for name in self.streams:
+            self.stream(name)
+        return set(self._truncated)
+
+    def stream(self, name: str) -> StreamData:
+        """The stream's data (read once, then cached); KeyError lists the available names."""
+        if name not in self.streams:
+            raise KeyError(f"run {self.path} has no stream {name!r}; available: {list(self.streams)}")
+        if name not in self._data:
+            self._data[name] = self._read_stream(self.streams[name])
+        return self._data[name]
+
+    def summary(self) -> list[dict]:
+        """Per stream: name, samples, nominal and measured rate, duration and field descriptions."""
+        rows = []
+        for name, spec in self.streams.items():
+            data = self.stream(name)
+            t = data.t_s
+            rows.append(
+                {
+                    "name": name,
+                    "samples": len(data),
+                    "rate_hz": spec.rate_hz,
+                    "measured_rate_hz": data.measured_rate_hz(),
+                    "duration_s": float(t[-1] - t[0]) if len(t) else 0.0,
+                    "truncated": name in self._truncated,
+                    "fields": {
+                        f: {"unit": s.unit, "kind": s.kind, "shape": s.shape, "dtype": s.dtype}
+                        for f, s in spec.fields.items()
+                    },
+                }
+            )
+        return rows
+
+    def _read_stream(self, spec: StreamSpec) -> StreamData:
+        """Read one stream file, recovering the complete batches of a cut file."""
+        path = self.path / STREAMS_DIR / f"{spec.name}{STREAM_SUFFIX}"
+        if not path.is_file():
+            raise RunFormatError(f"run {self.path}: stream file {path.name} is missing")
+        schema = arrow_schema(spec)
+        batches, cut = _read_batches(path, schema)
+        if cut:
+            self._truncated.add(spec.name)
+        table = pa.Table.from_batches(batches, schema=schema)
+        t_s = np.array(table.column(TIME_FIELD).to_numpy(), dtype=np.float64)
+        fields = {name: to_numpy(table.column(name), f) for name, f in spec.fields.items()}
+        return StreamData(spec=spec, t_s=t_s, fields=fields)
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.path)!r}, status={self.status!r}, streams={list(self.streams)})"
+
+
+def _load_info(path: Path) -> dict:
+    """run.json of ``path``, checked to be a barrett-twin run of a version this code reads."""
+    if not path.is_dir():
+        raise RunFormatError(f"{path} is not a directory")
+    info_path = path / RUN_FILE
+    try:
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise RunFormatError(f"{path} has no {RUN_FILE}; not a barrett-twin run") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RunFormatError(f"{info_path} is unreadable: {exc}") from None
+    if not isinstance(info, dict) or info.get("format") != FORMAT:
+        raise RunFormatError(f"{info_path} is not a {FORMAT} file")
+    if info.get("format_version") != FORMAT_VERSION:
+        raise RunFormatError(
+            f"{info_path}: format_version {info.get('format_version')!r} unsupported "
+            f"(this code reads {FORMAT_VERSION})"
+        )
+    if not isinstance(info.get("status"), str):
+        raise RunFormatError(f"{info_path} has no status")
+    return info
+
+
+def _load_specs(info: dict, path: Path) -> dict[str, StreamSpec]:
+    """The stream specs declared in run.json; RunFormatError if any is malformed."""
+    try:
+        return {name: StreamSpec.from_json(d) for name, d in info["streams"].items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise RunFormatError(f"{path / RUN_FILE}: bad stream spec: {exc!r}") from None
+
+
+def open_run(path: Path | str) -> Run:
+    """Open a run directory; RunFormatError if it is not a readable barrett-twin run."""
+    return Run(path)

@@ -156,10 +156,9 @@ class Rig:
             n_scene = math.floor(duration_s * self.scene_rate_hz + 1e-9)
             for k in range(n_scene + 1):
                 self._push(k / self.scene_rate_hz, "scene")
+        # Only samples up to duration_s are scheduled; their deliveries (latency later) all complete.
         while self._queue:
             event = heapq.heappop(self._queue)
-            if event.t_s > duration_s + 1e-9:
-                break
             clock.advance_to(event.t_s)
             if event.kind == "sample_hand":
                 reading = hand.read()

@@ -253,6 +253,12 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(str(exc))
     except (FileExistsError, PermissionError) as exc:
         return _fail(str(exc))
+    except ValueError as exc:  # RunFormatError: not a readable run directory
+        from twin.recording import RunFormatError
+
+        if isinstance(exc, RunFormatError):
+            return _fail(str(exc))
+        raise
     except KeyboardInterrupt:
         print("twin: interrupted; the run directory is marked 'interrupted'", file=sys.stderr)
         return 130

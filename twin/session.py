@@ -7,9 +7,9 @@ interrupted, so nothing half-written looks complete.
 
 from __future__ import annotations
 
-import os
 import platform
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -53,8 +53,12 @@ def check_output_dir(run_dir: Path) -> None:
         parent = run_dir.parent
         while not parent.exists():
             parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise ConfigError(f"--out {run_dir}: cannot write in {parent}")
+    if not parent.is_dir():
+        raise ConfigError(f"--out {run_dir}: {parent} is not a directory")
+    try:  # os.access says yes to root everywhere; a real probe does not lie
+        tempfile.TemporaryDirectory(dir=parent).cleanup()
+    except OSError as exc:
+        raise ConfigError(f"--out {run_dir}: cannot write in {parent} ({exc.strerror})") from None
 
 
 def calibration_tables() -> dict[str, Any]:

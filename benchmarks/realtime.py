@@ -1,0 +1,112 @@
+"""Real-time factor of the twin: physics alone, the rig with hand sensors, and a full recorded run.
+
+Real-time factor = simulated seconds / wall seconds, each row measured on the compress procedure
+(close, balance, then compression) so contacts are as they are in a real run.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+from experiments.compress import PHASES, CompressController
+from twin.rig import Rig
+from twin.sim.backend import SimBackend
+from twin.sim.foam import DEFAULT_OBJECT, LIBRARY
+
+
+def _physics_only(foam, duration_s: float) -> tuple[float, dict]:
+    """Replay the compress run's contact state: run the rig once, then time bare world steps."""
+    backend = SimBackend(foam)
+    backend.connect()
+    Rig(backend, phases=PHASES).run(CompressController(), duration_s)
+    world = backend.world
+    n = int(2.0 / world.timestep_s)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        world.step()
+    wall = time.perf_counter() - t0
+    return n * world.timestep_s / wall, world.warnings()
+
+
+def _rig(foam, duration_s: float) -> float:
+    backend = SimBackend(foam)
+    backend.connect()
+    t0 = time.perf_counter()
+    Rig(backend, phases=PHASES).run(CompressController(), duration_s)
+    return duration_s / (time.perf_counter() - t0)
+
+
+def _full_run(foam, duration_s: float) -> float:
+    from twin.session import run_experiment
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        run_experiment(
+            backend=SimBackend(foam),
+            controller=CompressController(),
+            phases=PHASES,
+            duration_s=duration_s,
+            run_dir=Path(tmp) / "run",
+            experiment={"name": "compress-benchmark"},
+            argv=["benchmark"],
+        )
+        return duration_s / (time.perf_counter() - t0)
+
+
+def run(quick: bool = False) -> dict:
+    """RTF rows per discretization of the default object and per library object."""
+    duration = 3.0 if quick else 10.0
+    rows = []
+    base = LIBRARY[DEFAULT_OBJECT]
+    cases = [(base.name, dof) for dof in ("trilinear", "quadratic", "full")]
+    cases += [(name, base.dof) for name in LIBRARY if name != DEFAULT_OBJECT]
+    if quick:
+        cases = cases[:1]
+    for name, dof in cases:
+        foam = LIBRARY[name].with_overrides(dof=dof)
+        physics, warnings = _physics_only(foam, duration)
+        row = {
+            "object": name,
+            "dof": dof,
+            "resolution": foam.resolution,
+            "physics_rtf": physics,
+            "rig_rtf": _rig(foam, duration),
+            "warnings": warnings,
+        }
+        if dof == base.dof:
+            row["full_run_rtf"] = _full_run(foam, duration)
+        rows.append(row)
+    return {"duration_s": duration, "rows": rows, "default_object": DEFAULT_OBJECT, "default_dof": base.dof}
+
+
+def to_markdown(results: dict) -> str:
+    """The BENCHMARKS.md section."""
+    lines = [
+        "## Real-time factor (simulated s per wall s; target >= 3x for the rig with hand sensors)",
+        "",
+        f"Compress procedure, {results['duration_s']:g} s of sim time per row, one process. "
+        "*physics*: bare world steps in the grasped state; *rig*: + hand sampling at 30 Hz, latency, "
+        "controller; *full run*: + Arrow recording and the Rerun .rrd (3-D scene at 30 Hz).",
+        "",
+        "| object | dof | resolution | physics | rig + hand sensors | full recorded run | MuJoCo warnings |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in results["rows"]:
+        full = f"{r['full_run_rtf']:.2f}x" if "full_run_rtf" in r else "-"
+        warn = ", ".join(f"{k}: {v}" for k, v in r["warnings"].items()) or "none"
+        default = (
+            " (default)"
+            if (r["object"], r["dof"]) == (results["default_object"], results["default_dof"])
+            else ""
+        )
+        lines.append(
+            f"| {r['object']}{default} | {r['dof']} | {r['resolution']} | {r['physics_rtf']:.2f}x "
+            f"| {r['rig_rtf']:.2f}x | {full} | {warn} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(to_markdown(run()))

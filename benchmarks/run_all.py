@@ -1,0 +1,59 @@
+"""Run every benchmark and write BENCHMARKS.md with the machine it ran on.
+
+Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_fidelity]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import platform
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SECTIONS = ("realtime", "foam_fidelity")
+
+
+def machine() -> str:
+    """One paragraph naming the machine, for every figure below it."""
+    cpu = platform.processor() or "?"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import mujoco
+
+    return (
+        f"Machine: {cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
+        f"Python {platform.python_version()}, MuJoCo {mujoco.__version__}. "
+        f"Written {datetime.now(UTC):%Y-%m-%d %H:%M} UTC by `python benchmarks/run_all.py`."
+    )
+
+
+def main() -> int:
+    """Run the chosen sections and write BENCHMARKS.md."""
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="tiny settings (smoke test, not for the record)")
+    parser.add_argument("--only", default=",".join(SECTIONS))
+    parser.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
+    args = parser.parse_args()
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    sys.path.insert(0, str(ROOT))
+    parts = ["# Benchmarks", "", machine(), ""]
+    for name in args.only.split(","):
+        module = importlib.import_module(f"benchmarks.{name}")
+        print(f"running {name} ...", file=sys.stderr, flush=True)
+        parts.append(module.to_markdown(module.run(quick=args.quick)))
+    args.out.write_text("\n".join(parts))
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -78,7 +78,8 @@ def test_every_library_foam_runs_10_s_headless(name: str, tmp_path: Path):
     assert run.metadata["mujoco_warnings"] == {}
     assert run.metadata["final_phase"] == "compress"
     torque = run.stream("hand")["torque_nm"]
-    assert (torque[-60:] > 0.1).all(), "every finger still squeezes the foam at the end"
+    # Far above the 0.005 N*m gauge noise: every finger still squeezes the foam through the last 2 s.
+    assert (torque[-60:] > 0.05).all()
 
 
 @pytest.mark.parametrize(

@@ -184,10 +184,11 @@ def cmd_info(args: argparse.Namespace) -> int:
         )
         return 0
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     console = Console()
-    console.print(f"[bold]{run.path}[/bold]  status: {run.status}")
+    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {run.status}")
     meta = run.metadata
     for key in ("backend", "experiment", "duration_s", "seed"):
         if key in meta:
@@ -203,19 +204,24 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"  object: {obj['name']} ({obj['shape']}, E = {obj['young_pa']:g} Pa, nu = {obj['poisson']:g})"
         )
     table = Table(title="streams")
-    for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)", "fields"):
-        table.add_column(col)
-    for s in summary:
-        fields = ", ".join(f"{name} [{f['unit']}, {f['kind']}]" for name, f in s["fields"].items())
+    for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)"):
+        table.add_column(col, justify="right" if col != "stream" else "left")
+    for st in summary:
         table.add_row(
-            s["name"],
-            str(s["samples"]),
-            f"{s['rate_hz']:g}",
-            f"{s['measured_rate_hz']:.2f}",
-            f"{s['duration_s']:.2f}",
-            fields,
+            st["name"],
+            str(st["samples"]),
+            f"{st['rate_hz']:g}",
+            f"{st['measured_rate_hz']:.2f}",
+            f"{st['duration_s']:.2f}",
         )
     console.print(table)
+    fields = Table(title="fields")
+    for col in ("stream", "field", "unit", "kind", "shape"):
+        fields.add_column(col)
+    for st in summary:
+        for name, f in st["fields"].items():
+            fields.add_row(st["name"], name, escape(f["unit"]), f["kind"], escape(str(tuple(f["shape"]))))
+    console.print(fields)
     if run.truncated:
         console.print(f"[yellow]truncated streams (crash recovery): {', '.join(sorted(run.truncated))}")
     return 0

@@ -70,6 +70,7 @@ class RunRecording:
         self._series_named: set[str] = set()
         self._flex: list[tuple[str, int, int, np.ndarray]] = []
         self._bodies: list[tuple[int, str]] = []
+        self._welded: list[tuple[int, str]] = []
         self._closed = False
 
     def _set_time(self, t_s: float) -> None:
@@ -77,10 +78,8 @@ class RunRecording:
 
     def log_model(self, model: mujoco.MjModel) -> None:
         """Static geometry of the visual geoms, under their bodies; remembers flex surfaces."""
-        names = {}
-        for b in range(1, model.nbody):
-            names[b] = _body_path(model, b)
-            self._bodies.append((b, names[b]))
+        names = {b: _body_path(model, b) for b in range(1, model.nbody)}
+        drawn: set[int] = set()
         for g in range(model.ngeom):
             body = int(model.geom_bodyid[g])
             if (
@@ -97,6 +96,10 @@ class RunRecording:
             pos, quat = model.geom_pos[g], model.geom_quat[g]
             self.rec.log(path, rr.Transform3D(translation=pos, quaternion=_xyzw(quat)), static=True)
             self.rec.log(path, shape, static=True)
+            drawn.add(body)
+        # Only bodies that draw something are posed; those welded to the world are posed once.
+        for b in sorted(drawn):
+            (self._welded if model.body_weldid[b] == 0 else self._bodies).append((b, names[b]))
         for f in range(model.nflex):
             faces = _flex_surface(model, f)
             name = _name(model, "flex", f)
@@ -106,6 +109,11 @@ class RunRecording:
 
     def log_scene(self, t_s: float, data: mujoco.MjData) -> None:
         """Body poses and the flex meshes at sim time t_s."""
+        for b, path in self._welded:
+            self.rec.log(
+                path, rr.Transform3D(translation=data.xpos[b], quaternion=_xyzw(data.xquat[b])), static=True
+            )
+        self._welded = []
         self._set_time(t_s)
         for b, path in self._bodies:
             self.rec.log(path, rr.Transform3D(translation=data.xpos[b], quaternion=_xyzw(data.xquat[b])))

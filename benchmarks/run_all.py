@@ -1,6 +1,6 @@
 """Run every benchmark and write BENCHMARKS.md with the machine it ran on.
 
-Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_fidelity]
+Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_discretization]
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ("realtime", "foam_fidelity")
+SECTIONS = ("realtime", "foam_discretization")
 
 
 def machine() -> str:
@@ -49,7 +49,10 @@ def main() -> int:
     for name in args.only.split(","):
         module = importlib.import_module(f"benchmarks.{name}")
         print(f"running {name} ...", file=sys.stderr, flush=True)
-        parts.append(module.to_markdown(module.run(quick=args.quick)))
+        results = module.run(quick=args.quick)
+        parts.append(module.to_markdown(results))
+        if hasattr(module, "plot"):
+            module.plot(results, str(ROOT / "benchmarks" / f"{name}.png"))
     args.out.write_text("\n".join(parts))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0

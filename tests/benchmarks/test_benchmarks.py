@@ -1,0 +1,33 @@
+"""The benchmark scripts compute what they claim (quick settings; no timing assertions)."""
+
+import numpy as np
+
+from benchmarks import foam_discretization, realtime
+
+
+def test_foam_study_forces_grow_with_depth_and_compare_to_the_reference():
+    results = foam_discretization.run(quick=True)
+    ref_forces = results["reference"]["hold_force_n"]
+    assert np.all(np.diff(ref_forces) > 0)
+    for row in results["rows"]:
+        assert np.all(np.diff(row["hold_force_n"]) > 0), row["dof"]
+        assert np.isfinite(row["hold_error_pct"]).all() and row["steps_per_s"] > 0
+    # The trilinear foam cannot dent locally: it is much stiffer than the full-dof reference.
+    trilinear = next(r for r in results["rows"] if r["dof"] == "trilinear")
+    assert min(trilinear["hold_error_pct"]) > 50
+    markdown = foam_discretization.to_markdown(results)
+    assert markdown.startswith("## Foam discretization") and "| trilinear | 4 |" in markdown
+
+
+def test_depth_profile_holds_then_cycles():
+    f = foam_discretization.depth_profile_mm
+    hold = foam_discretization.RAMP_S + foam_discretization.HOLD_S
+    assert [f(k * hold - 0.01) for k in (1, 2, 3)] == [2.0, 4.0, 6.0]
+    assert f(foam_discretization.total_time_s() - 1e-6) < 0.01
+
+
+def test_realtime_rows_are_positive_ratios():
+    results = realtime.run(quick=True)
+    (row,) = results["rows"]
+    assert row["physics_rtf"] > 0 and row["rig_rtf"] > 0 and row["full_run_rtf"] > 0
+    assert "| block (default) | trilinear |" in realtime.to_markdown(results)

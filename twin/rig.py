@@ -17,7 +17,7 @@ import numpy as np
 
 from twin import units
 from twin.interface.backend import Backend
-from twin.interface.devices import FINGER_LABELS, MOTOR_LABELS, HandCommand, HandReading
+from twin.interface.devices import FINGER_LABELS, HandCommand, HandReading
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 
 
@@ -62,7 +62,9 @@ def command_stream_spec(rate_hz: float) -> StreamSpec:
         fields={
             "position_counts": FieldSpec(unit="counts", shape=(4,), kind="command"),
             "max_velocity_counts_s": FieldSpec(unit="counts/s", kind="command"),
-            "phase": FieldSpec(unit="1", dtype="int32", kind="status"),
+            "phase": FieldSpec(
+                unit="1", dtype="int32", kind="status", description="index into metadata 'phases'"
+            ),
         },
     )
 
@@ -194,7 +196,7 @@ class Rig:
             applied = self.backend.hand.command(command)
             self._record(
                 "command",
-                reading.t_s,
+                self.backend.clock.now(),  # sent on delivery, one latency after the sample
                 {
                     "position_counts": applied.position_counts,
                     "max_velocity_counts_s": applied.max_velocity_counts_s,
@@ -223,6 +225,3 @@ class Rig:
         self.samples[stream] = self.samples.get(stream, 0) + 1
         if self.writer is not None:
             self.writer.append(stream, t_s, {k: np.asarray(v) for k, v in values.items()})
-
-
-__all__ = ["MOTOR_LABELS", "Controller", "Rig", "RigResult"]

@@ -125,11 +125,7 @@ class Rig:
         self._order = 0
         self.samples: dict[str, int] = {}
         hand_spec = backend.hand.spec
-        self._velocity_sample_time_s = getattr(
-            getattr(backend.hand, "config", None),
-            "velocity_sample_time_s",
-            units.VELOCITY_SAMPLE_TIME_S,
-        )
+        self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:
             writer.add_stream(hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit))
             writer.add_stream(command_stream_spec(hand_spec.rate_hz))

@@ -107,8 +107,7 @@ def run_experiment(
                 scene_logger = _scene_logger(backend, recording)
                 rig = Rig(backend, writer, recording, scene_logger, phases=phases)
                 result = rig.run(controller, duration_s, progress)
-                warnings = getattr(getattr(backend, "world", None), "warnings", dict)()
-                writer.update_metadata(final_phase=result.final_phase, mujoco_warnings=warnings)
+                writer.update_metadata(final_phase=result.final_phase, **backend.diagnostics())
             finally:
                 recording.close()
         return RunOutcome(run_dir, rrd_path, result, "complete")
@@ -117,13 +116,14 @@ def run_experiment(
 
 
 def _scene_logger(backend: Backend, recording: Any) -> Callable[[float], None] | None:
-    """3-D scene logging where the backend has a MuJoCo world (the sim)."""
-    world = getattr(backend, "world", None)
-    if world is None:
+    """3-D scene logging where the backend has a MuJoCo scene (the sim)."""
+    scene = backend.scene()
+    if scene is None:
         return None
-    recording.log_model(world.model)
+    model, data = scene
+    recording.log_model(model)
 
     def log(t_s: float) -> None:
-        recording.log_scene(t_s, world.data)
+        recording.log_scene(t_s, data)
 
     return log

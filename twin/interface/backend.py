@@ -73,3 +73,11 @@ class Backend(ABC):
     def metadata(self) -> dict[str, Any]:
         """What the run's metadata should record about this backend."""
         return {"backend": self.name}
+
+    def scene(self) -> tuple[Any, Any] | None:
+        """(MjModel, MjData) to draw in 3-D, where the backend has a MuJoCo world; None otherwise."""
+        return None
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Problems the backend noticed during the run (e.g. MuJoCo warnings); empty when clean."""
+        return {}

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Self
+from typing import TYPE_CHECKING, Self
 
 import numpy as np
 from numpy.typing import NDArray
 
 from twin.interface.errors import DeviceNotConnectedError
 from twin.interface.specs import DeviceSpec
+
+if TYPE_CHECKING:
+    from twin.interface.hand_spec import HandConfig
 
 MOTOR_LABELS = ("F1", "F2", "F3", "S")
 FINGER_LABELS = ("F1", "F2", "F3")
@@ -96,6 +99,9 @@ class HandCommand:
 
 class Hand(Device):
     """The BH8 hand: 4 motors commanded in counts; encoder, velocity and strain readings."""
+
+    config: HandConfig
+    """Declared sampling and corruption (same type for every backend)."""
 
     @abstractmethod
     def read(self) -> HandReading:

@@ -87,6 +87,14 @@ class SimBackend(Backend):
                     total[k] += c.frame.reshape(3, 3).T @ wrench[:3]
         return np.linalg.norm(total, axis=1)
 
+    def scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The MuJoCo model and data, for 3-D logging."""
+        return self.world.model, self.world.data
+
+    def diagnostics(self) -> dict[str, Any]:
+        """MuJoCo warnings raised so far."""
+        return {"mujoco_warnings": self.world.warnings()}
+
     def metadata(self) -> dict[str, Any]:
         """Scene, object and physics settings of this run."""
         m = self.world.model

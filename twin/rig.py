@@ -1,4 +1,4 @@
-"""The rig: one session, one clock, multi-rate sampling, recording and visualization.
+"""The rig: one session, one clock, multi-rate sampling, the safety layer, recording and visualization.
 
 The rig schedules each device at its declared rate. On sim time a reading sampled at t reaches the
 controller and the recording at t + latency (as dm_control's observable delay); on hardware the
@@ -19,6 +19,7 @@ from twin import units
 from twin.interface.backend import Backend
 from twin.interface.devices import FINGER_LABELS, HandCommand, HandReading
 from twin.recording import FieldSpec, RunWriter, StreamSpec
+from twin.safety import SafetyLayer
 
 
 class Controller(Protocol):
@@ -114,8 +115,10 @@ class Rig:
         scene_logger: Callable[[float], None] | None = None,
         scene_rate_hz: float = 30.0,
         phases: tuple[str, ...] = ("idle",),
+        safety: SafetyLayer | None = None,
     ) -> None:
         self.backend = backend
+        self.safety = safety or SafetyLayer()
         self.writer = writer
         self.viewer = viewer
         self.scene_logger = scene_logger
@@ -187,9 +190,10 @@ class Rig:
         self._record("hand", reading.t_s, row)
         if truth is not None:
             self._record("truth", reading.t_s, truth)
+        self.safety.observe(reading)
         command = controller(reading)
         if command is not None:
-            applied = self.backend.hand.command(command)
+            applied = self.backend.hand.command(self.safety.check(command))
             self._record(
                 "command",
                 self.backend.clock.now(),  # sent on delivery, one latency after the sample

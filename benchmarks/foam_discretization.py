@@ -192,7 +192,9 @@ def to_markdown(results: dict) -> str:
         + ", ".join(f"{f:.2f}" for f in ref["hold_force_n"])
         + f" N. Its convergence: resolution {conv['resolution']} differs by "
         + ", ".join(f"{e:+.1f}%" for e in conv["hold_error_pct"])
-        + f" at the holds and {conv['face_rms_mm']:.2f} mm on the face.",
+        + f" at the holds and {conv['face_rms_mm']:.2f} mm on the face. Reference warnings: "
+        + (", ".join(f"{k}: {v}" for k, v in ref["warnings"].items()) or "none")
+        + ".",
         "",
         "| dof | resolution | step (ms) | steps/s | RTF (foam alone) | force error 2/4/6 mm "
         "| cycle RMS force error | face RMS error at 6 mm | warnings |",
@@ -214,7 +216,7 @@ def to_markdown(results: dict) -> str:
         "nodes: under a fingertip-sized dent it is 5-7x stiffer than the reference and its face shape is "
         "off by ~2 mm, so its `young_pa` acts as an effective modulus for whole-object squeezing, not the "
         "material's local modulus. For local indentation (tactile pads, contours) use `--dof full "
-        "--resolution 5` (within ~10% of the reference, 0.5x real time for the foam alone) or `quadratic`.",
+        "--resolution 5` (within ~10% of the reference, well below real time) or `quadratic`.",
     ]
     return "\n".join(lines) + "\n"
 

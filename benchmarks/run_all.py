@@ -1,6 +1,7 @@
-"""Run every benchmark and write BENCHMARKS.md with the machine it ran on.
+"""Run benchmarks and write BENCHMARKS.md with the machine they ran on.
 
 Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_discretization]
+Each section sits between markers, so --only re-runs some sections and keeps the others as they were.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import argparse
 import importlib
 import os
 import platform
+import re
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,6 +38,14 @@ def machine() -> str:
     )
 
 
+def read_sections(path: Path) -> dict[str, str]:
+    """The sections of an existing BENCHMARKS.md, by name (empty if there is none)."""
+    if not path.exists():
+        return {}
+    found = re.findall(r"<!-- section:(\w+) -->\n(.*?)<!-- /section:\1 -->", path.read_text(), flags=re.S)
+    return dict(found)
+
+
 def main() -> int:
     """Run the chosen sections and write BENCHMARKS.md."""
     parser = argparse.ArgumentParser(description=__doc__)
@@ -45,15 +55,16 @@ def main() -> int:
     args = parser.parse_args()
     os.environ.setdefault("MUJOCO_GL", "egl")
     sys.path.insert(0, str(ROOT))
-    parts = ["# Benchmarks", "", machine(), ""]
+    sections = read_sections(args.out)
     for name in args.only.split(","):
         module = importlib.import_module(f"benchmarks.{name}")
         print(f"running {name} ...", file=sys.stderr, flush=True)
         results = module.run(quick=args.quick)
-        parts.append(module.to_markdown(results))
+        sections[name] = f"{machine()}\n\n{module.to_markdown(results)}"
         if hasattr(module, "plot"):
             module.plot(results, str(ROOT / "benchmarks" / f"{name}.png"))
-    args.out.write_text("\n".join(parts))
+    body = [f"<!-- section:{n} -->\n{sections[n]}<!-- /section:{n} -->\n" for n in SECTIONS if n in sections]
+    args.out.write_text("# Benchmarks\n\n" + "\n".join(body))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
 

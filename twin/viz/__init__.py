@@ -1,0 +1,1 @@
+"""Visualisation: the Rerun recording of a run (twin.viz.rerun_log)."""

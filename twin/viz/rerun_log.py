@@ -1,13 +1,16 @@
 """Every Rerun call of the project: one recording per run, saved to an .rrd with a default blueprint.
 
-The 3-D view shows the MuJoCo model (visual geoms on moving bodies) and the deforming foam; time
-series show each finger's position, velocity, torque and force; a tab waits for tactile heatmaps and
-camera images. Reading an .rrd back uses Rerun's own chunk reader.
+The 3-D view shows the MuJoCo model (visual geoms on their bodies) and the deforming foam; time series
+show each finger's position, velocity, torque and force; a tab waits for tactile heatmaps and camera
+images. Reading an .rrd back uses Rerun's own chunk reader (`rerun.chunk.RrdReader`): Rerun 0.41 has no
+`rerun.dataframe` module any more, and its DataFusion query API (`ChunkStore.reader`) needs the
+optional `datafusion` package, which this project does not install.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import re
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,25 +21,39 @@ from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
     import mujoco
+    from rerun.chunk import Chunk
 
 TIMELINE = "sim_time"
 PLOT_GROUPS = ("position_counts", "velocity_counts", "torque_nm", "force_kg")
-FOAM_RGB = (240, 190, 100)
+PLOT_STREAMS = ("hand",)
+FOAM_RGB = (240, 190, 100)  # pale yellow-orange
+SENSORS_ENTITY = "notes/sensors"
+LOG_ENTITY = "log"
 # mjtGeom values (stable across MuJoCo 3.x): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4,
-# cylinder 5, box 6, mesh 7.
+# cylinder 5, box 6, mesh 7, sdf 8. Height fields and SDFs are not drawn.
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 0, 2, 3, 4, 5, 6, 7
+_DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)  # MuJoCo's geom rgba default
+_SCALARS = rr.Scalars.descriptor_scalars().component
+# Entity path parts that Rerun takes verbatim (anything else it escapes or drops, with a warning).
+_UNSAFE = re.compile(r"[^\w.\-]")
 
 
 def default_blueprint(
-    streams: Sequence[str] = ("hand",), plot_groups: Sequence[str] = PLOT_GROUPS
+    plot_groups: Sequence[str] = PLOT_GROUPS, *, streams: Sequence[str] = PLOT_STREAMS
 ) -> rrb.Blueprint:
-    """3-D scene left; per-quantity time series right; a tab reserved for tactile pads and cameras."""
+    """3-D scene left, one time-series view per plot group right, a tab reserved for sensors.
+
+    The view of group g shows field g of every stream in `streams` ("/plots/<stream>/<g>"). Rerun's
+    entity filters only take `**` at the end of a path ("/plots/**/g" matches nothing), hence the
+    explicit streams; RunRecording re-sends the blueprint when a new stream is logged.
+    """
     plots = [
         rrb.TimeSeriesView(name=group, origin="/plots", contents=[f"/plots/{s}/{group}" for s in streams])
         for group in plot_groups
     ]
     sensors = rrb.Tabs(
-        rrb.TextDocumentView(name="Tactile & cameras", origin="/notes/sensors"),
+        rrb.TextDocumentView(name="Tactile & cameras", origin=f"/{SENSORS_ENTITY}"),
+        rrb.TextLogView(name="log", origin=f"/{LOG_ENTITY}"),
         name="Tactile & cameras",
     )
     return rrb.Blueprint(
@@ -44,7 +61,7 @@ def default_blueprint(
             rrb.Vertical(
                 rrb.Spatial3DView(name="hand and foam", origin="/world"), sensors, row_shares=[3, 1]
             ),
-            rrb.Vertical(*plots),
+            rrb.Vertical(*plots, name="time series"),
             column_shares=[3, 2],
         ),
         collapse_panels=True,
@@ -55,70 +72,89 @@ class RunRecording:
     """One Rerun recording of a run, saved to an .rrd file, with the default blueprint."""
 
     def __init__(
-        self, rrd_path: Path | str, *, application_id: str = "barrett_twin", recording_id: str | None = None
+        self,
+        rrd_path: Path | str,
+        *,
+        application_id: str = "barrett_twin",
+        recording_id: str | None = None,
+        plot_streams: Sequence[str] = PLOT_STREAMS,
     ) -> None:
+        """Open the recording and its .rrd file; `plot_streams` are plotted from the start."""
         self.rrd_path = Path(rrd_path)
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        self.rec.save(self.rrd_path, default_blueprint=default_blueprint())
+        self._plot_streams = list(dict.fromkeys(plot_streams))
+        self.rec.save(self.rrd_path, default_blueprint=default_blueprint(streams=self._plot_streams))
         self.rec.log(
-            "notes/sensors",
+            SENSORS_ENTITY,
             rr.TextDocument(
                 "Tactile heatmaps and camera images appear here once those devices are on the rig."
             ),
             static=True,
         )
         self._series_named: set[str] = set()
-        self._flex: list[tuple[str, int, int, np.ndarray]] = []
+        self._flex: list[tuple[str, int, int, int, np.ndarray]] = []
         self._bodies: list[tuple[int, str]] = []
         self._welded: list[tuple[int, str]] = []
         self._closed = False
 
-    def _set_time(self, t_s: float) -> None:
-        self.rec.set_time(TIMELINE, duration=float(t_s))
+    def _open(self, t_s: float | None) -> None:
+        if self._closed:
+            raise RuntimeError(f"recording {self.rrd_path} is closed")
+        if t_s is not None:
+            self.rec.set_time(TIMELINE, duration=float(t_s))
 
     def log_model(self, model: mujoco.MjModel) -> None:
-        """Static geometry of the visual geoms, under their bodies; remembers flex surfaces."""
-        names = {b: _body_path(model, b) for b in range(1, model.nbody)}
+        """Static geometry of the visual geoms (group < 3) under their bodies; remembers flex surfaces."""
+        self._open(None)
+        self._bodies, self._welded, self._flex = [], [], []
+        bodies = _unique([_name(model, "body", b) for b in range(model.nbody)])
+        geoms = [_name(model, "geom", g) for g in range(model.ngeom)]
         drawn: set[int] = set()
+        used: set[str] = set()
         for g in range(model.ngeom):
             body = int(model.geom_bodyid[g])
-            if (
-                model.geom_group[g] >= 3
-                or model.geom_type[g] == _PLANE
-                or model.geom_rgba[g, 3] == 0
-                or body == 0
-            ):
+            rgba = _geom_rgba(model, g)
+            if model.geom_group[g] >= 3 or model.geom_type[g] == _PLANE or rgba[3] == 0:
                 continue
-            path = f"{names[body]}/{_name(model, 'geom', g)}"
-            shape = _geom_archetype(model, g)
+            shape = _geom_archetype(model, g, (rgba * 255).round().astype(np.uint8))
             if shape is None:
                 continue
+            path = f"world/bodies/{bodies[body]}/{geoms[g]}"
+            if path in used:
+                path = f"{path}_{g}"
+            used.add(path)
             pos, quat = model.geom_pos[g], model.geom_quat[g]
-            self.rec.log(path, rr.Transform3D(translation=pos, quaternion=_xyzw(quat)), static=True)
-            self.rec.log(path, shape, static=True)
+            self.rec.log(path, rr.Transform3D(translation=pos, quaternion=_xyzw(quat)), shape, static=True)
             drawn.add(body)
-        # Only bodies that draw something are posed; those welded to the world are posed once.
-        for b in sorted(drawn):
-            (self._welded if model.body_weldid[b] == 0 else self._bodies).append((b, names[b]))
-        for f in range(model.nflex):
-            faces = _flex_surface(model, f)
-            name = _name(model, "flex", f)
+        # Only bodies that draw something are posed (the world body is the identity); bodies welded
+        # to the world are posed once (MuJoCo gives a mocap body a weld root of its own).
+        for b in sorted(drawn - {0}):
+            fixed = model.body_weldid[b] == 0
+            (self._welded if fixed else self._bodies).append((b, f"world/bodies/{bodies[b]}"))
+        for f, name in enumerate(_unique([_name(model, "flex", f) for f in range(model.nflex)])):
             self._flex.append(
-                (f"world/flex/{name}", int(model.flex_vertadr[f]), int(model.flex_vertnum[f]), faces)
+                (
+                    f"world/flex/{name}",
+                    int(model.flex_vertadr[f]),
+                    int(model.flex_vertnum[f]),
+                    int(model.flex_dim[f]),
+                    _flex_surface(model, f),
+                )
             )
 
     def log_scene(self, t_s: float, data: mujoco.MjData) -> None:
-        """Body poses and the flex meshes at sim time t_s."""
+        """Body world poses and the flex meshes (positions, normals) at sim time t_s."""
+        self._open(t_s)
         for b, path in self._welded:
-            self.rec.log(
-                path, rr.Transform3D(translation=data.xpos[b], quaternion=_xyzw(data.xquat[b])), static=True
-            )
+            self.rec.log(path, _pose(data, b), static=True)
         self._welded = []
-        self._set_time(t_s)
         for b, path in self._bodies:
-            self.rec.log(path, rr.Transform3D(translation=data.xpos[b], quaternion=_xyzw(data.xquat[b])))
-        for path, adr, num, faces in self._flex:
+            self.rec.log(path, _pose(data, b))
+        for path, adr, num, dim, faces in self._flex:
             verts = np.asarray(data.flexvert_xpos[adr : adr + num], dtype=np.float32)
+            if dim == 1:  # a cable: its edges
+                self.rec.log(path, rr.LineStrips3D(verts[faces], colors=[FOAM_RGB]))
+                continue
             self.rec.log(
                 path,
                 rr.Mesh3D(
@@ -136,20 +172,31 @@ class RunRecording:
         values: Mapping[str, ArrayLike],
         labels: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
-        """One row of time series: entity plots/<stream>/<field>, several series per array field."""
-        self._set_time(t_s)
+        """One time-series row: entity plots/<stream>/<field>, one series per element of an array field.
+
+        labels[field] names the series of a field (set once, statically); its length must match.
+        """
+        self._open(t_s)
+        if stream not in self._plot_streams:
+            self._plot_streams.append(stream)
+            self.rec.send_blueprint(default_blueprint(streams=self._plot_streams))
         for field, value in values.items():
             path = f"plots/{stream}/{field}"
             arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+            if arr.ndim != 1:
+                raise ValueError(f"{path}: a time series takes a scalar or a 1-D array, got {arr.shape}")
             if path not in self._series_named and labels and field in labels:
-                self.rec.log(path, rr.SeriesLines(names=list(labels[field])), static=True)
+                names = [str(n) for n in labels[field]]
+                if len(names) != arr.size:
+                    raise ValueError(f"{path}: {len(names)} labels for {arr.size} values")
+                self.rec.log(path, rr.SeriesLines(names=names), static=True)
                 self._series_named.add(path)
             self.rec.log(path, rr.Scalars(arr))
 
     def log_text(self, t_s: float, text: str, level: str = "INFO") -> None:
-        """A line in the run's log panel."""
-        self._set_time(t_s)
-        self.rec.log("log", rr.TextLog(text, level=level))
+        """A line in the run's text log (entity "log")."""
+        self._open(t_s)
+        self.rec.log(LOG_ENTITY, rr.TextLog(text, level=level))
 
     def close(self) -> None:
         """Flush and finish the .rrd; safe to call twice."""
@@ -166,19 +213,20 @@ class RunRecording:
 
 
 def _name(model: mujoco.MjModel, kind: str, i: int) -> str:
-    import mujoco
-
-    obj = {
-        "body": mujoco.mjtObj.mjOBJ_BODY,
-        "geom": mujoco.mjtObj.mjOBJ_GEOM,
-        "flex": mujoco.mjtObj.mjOBJ_FLEX,
-    }
-    raw = mujoco.mj_id2name(model, obj[kind], i)
-    return (raw or f"{kind}_{i}").replace("/", "_").strip("_") or f"{kind}_{i}"
+    """An object's MuJoCo name made a safe entity path part, or <kind>_<i> when it has none."""
+    adr = int(getattr(model, f"name_{kind}adr")[i])
+    raw = bytes(model.names[adr:]).split(b"\0", 1)[0].decode("utf-8", "replace")
+    return _UNSAFE.sub("_", raw).strip("_") or f"{kind}_{i}"
 
 
-def _body_path(model: mujoco.MjModel, b: int) -> str:
-    return f"world/bodies/{_name(model, 'body', b)}"
+def _unique(names: list[str]) -> list[str]:
+    """Suffix the index to names met before, so that no two objects share an entity."""
+    seen: set[str] = set()
+    out = []
+    for i, name in enumerate(names):
+        out.append(name if name not in seen else f"{name}_{i}")
+        seen.add(out[-1])
+    return out
 
 
 def _xyzw(quat_wxyz: ArrayLike) -> rr.Quaternion:
@@ -186,12 +234,22 @@ def _xyzw(quat_wxyz: ArrayLike) -> rr.Quaternion:
     return rr.Quaternion(xyzw=[x, y, z, w])
 
 
-def _geom_archetype(model: mujoco.MjModel, g: int) -> rr.AsComponents | None:
+def _pose(data: mujoco.MjData, b: int) -> rr.Transform3D:
+    return rr.Transform3D(translation=data.xpos[b], quaternion=_xyzw(data.xquat[b]))
+
+
+def _geom_rgba(model: mujoco.MjModel, g: int) -> np.ndarray:
+    """MuJoCo's rule (mjv): the material's colour unless the geom sets an rgba of its own."""
+    rgba = np.asarray(model.geom_rgba[g], dtype=np.float32)
+    mat = int(model.geom_matid[g])
+    if mat >= 0 and np.array_equal(rgba, _DEFAULT_RGBA):
+        rgba = np.asarray(model.mat_rgba[mat], dtype=np.float32)
+    return np.clip(rgba, 0, 1)
+
+
+def _geom_archetype(model: mujoco.MjModel, g: int, color: np.ndarray) -> rr.AsComponents | None:
     kind = int(model.geom_type[g])
     size = model.geom_size[g]
-    color = (np.clip(model.geom_rgba[g], 0, 1) * 255).astype(np.uint8)
-    if model.geom_matid[g] >= 0:
-        color = (np.clip(model.mat_rgba[model.geom_matid[g]], 0, 1) * 255).astype(np.uint8)
     fill = rr.components.FillMode.Solid
     if kind == _BOX:
         return rr.Boxes3D(half_sizes=[size], colors=[color], fill_mode=fill)
@@ -207,30 +265,32 @@ def _geom_archetype(model: mujoco.MjModel, g: int) -> rr.AsComponents | None:
     if kind == _CYLINDER:
         return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], colors=[color], fill_mode=fill)
     if kind == _MESH:
-        m = model.geom_dataid[g]
-        v0, nv = model.mesh_vertadr[m], model.mesh_vertnum[m]
-        f0, nf = model.mesh_faceadr[m], model.mesh_facenum[m]
+        m = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        f0, nf = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        verts = np.asarray(model.mesh_vert[v0 : v0 + nv], dtype=np.float32)
+        faces = np.asarray(model.mesh_face[f0 : f0 + nf], dtype=np.uint32)
         return rr.Mesh3D(
-            vertex_positions=model.mesh_vert[v0 : v0 + nv],
-            triangle_indices=model.mesh_face[f0 : f0 + nf],
+            vertex_positions=verts,
+            triangle_indices=faces,
+            vertex_normals=_vertex_normals(verts, faces),
             albedo_factor=color,
         )
     return None
 
 
 def _flex_surface(model: mujoco.MjModel, f: int) -> np.ndarray:
-    """Triangles (vertex indices local to the flex) of a flex's outer surface."""
+    """Vertex indices, local to the flex, of its outer surface triangles (of its edges for a 1-D flex)."""
     dim = int(model.flex_dim[f])
     if dim == 3:
         adr, num = int(model.flex_shelldataadr[f]), int(model.flex_shellnum[f])
         return np.asarray(model.flex_shell[adr : adr + 3 * num], dtype=np.uint32).reshape(-1, 3)
     adr, num = int(model.flex_elemdataadr[f]), int(model.flex_elemnum[f])
-    return np.asarray(model.flex_elem[adr : adr + (dim + 1) * num], dtype=np.uint32).reshape(-1, dim + 1)[
-        :, :3
-    ]
+    return np.asarray(model.flex_elem[adr : adr + (dim + 1) * num], dtype=np.uint32).reshape(-1, dim + 1)
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals: the area-weighted sum of the adjacent faces' normals."""
     a, b, c = (verts[faces[:, i]] for i in range(3))
     face_n = np.cross(b - a, c - a)
     normals = np.zeros_like(verts)
@@ -240,14 +300,19 @@ def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return normals / np.where(norm > 0, norm, 1.0)
 
 
-def _chunks(rrd_path: Path | str):
+def _chunks(rrd_path: Path | str, **filters: object) -> Iterator[Chunk]:
+    """The chunks of the first recording in an .rrd (no blueprint), filtered on Rerun's side."""
     from rerun.chunk import RrdReader
 
-    return RrdReader(str(rrd_path)).stream()
+    path = Path(rrd_path)
+    if not path.is_file():
+        raise FileNotFoundError(path)
+    stream = RrdReader(path).stream()
+    return iter(stream.filter(**filters) if filters else stream)
 
 
 def read_rrd_entities(rrd_path: Path | str) -> dict[str, int]:
-    """Entity path -> rows logged, read back with Rerun's own reader."""
+    """Entity path ("/world/flex/foam") -> rows logged to it, static rows included."""
     counts: dict[str, int] = {}
     for chunk in _chunks(rrd_path):
         counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
@@ -257,24 +322,88 @@ def read_rrd_entities(rrd_path: Path | str) -> dict[str, int]:
 def read_rrd_scalars(
     rrd_path: Path | str, entity_path: str, timeline: str = TIMELINE
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) and values (n,) or (n, k) of an rr.Scalars entity, sorted by time."""
+    """Times (s) and values, (n,) for one series or (n, k) for k, of an rr.Scalars entity, in time order.
+
+    Raises KeyError when the entity has no scalars on that timeline.
+    """
+    entity_path = "/" + entity_path.lstrip("/")
     times, values = [], []
-    for chunk in _chunks(rrd_path):
-        if chunk.entity_path != entity_path or chunk.is_static:
-            continue
+    for chunk in _chunks(rrd_path, content=entity_path, is_static=False, components=_SCALARS):
         batch = chunk.to_record_batch()
-        names = batch.schema.names
-        t_col = next((n for n in names if n == timeline), None)
-        v_col = next((n for n in names if n.endswith("scalars")), None)
-        if t_col is None or v_col is None:
+        if chunk.entity_path != entity_path or timeline not in batch.schema.names:
             continue
-        t = batch.column(t_col).to_numpy(zero_copy_only=False)
-        times.append(t.astype("timedelta64[ns]").astype(np.int64) / 1e9 if t.dtype.kind == "m" else t / 1e9)
-        values.extend(np.asarray(v, dtype=np.float64) for v in batch.column(v_col).to_pylist())
+        t = batch.column(timeline).to_numpy(zero_copy_only=False)
+        for ti, v in zip(t, batch.column(_SCALARS).to_pylist(), strict=True):
+            if v is not None:
+                times.append(ti)
+                values.append(v)
     if not times:
-        raise KeyError(f"no scalars at {entity_path} in {rrd_path}")
-    t = np.concatenate(times)
-    v = np.array(values)
-    order = np.argsort(t, kind="stable")
+        raise KeyError(f"no scalars at {entity_path} on timeline {timeline!r} in {rrd_path}")
+    t = np.array(times)
+    t_s = t.astype("timedelta64[ns]").astype(np.int64) / 1e9 if t.dtype.kind == "m" else t.astype(float)
+    v = np.array(values, dtype=np.float64)
+    order = np.argsort(t_s, kind="stable")
     v = v[order]
-    return t[order], v[:, 0] if v.ndim == 2 and v.shape[1] == 1 else v
+    return t_s[order], v[:, 0] if v.shape[1] == 1 else v
+
+
+def read_rrd_meshes(
+    rrd_path: Path | str, entity_path: str
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Vertex positions (m, 3), triangles (t, 3) and vertex normals (m, 3 or 0, 3) of each Mesh3D row
+    logged at an entity, in the order logged."""
+    entity_path = "/" + entity_path.lstrip("/")
+    columns = [
+        rr.Mesh3D.descriptor_vertex_positions().component,
+        rr.Mesh3D.descriptor_triangle_indices().component,
+        rr.Mesh3D.descriptor_vertex_normals().component,
+    ]
+    rows = []
+    for chunk in _chunks(rrd_path, content=entity_path, components=columns):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path != entity_path or columns[0] not in batch.schema.names:
+            continue
+        cells = [
+            batch.column(c).to_pylist() if c in batch.schema.names else [None] * batch.num_rows
+            for c in columns
+        ]
+        for positions, triangles, normals in zip(*cells, strict=True):
+            if positions is not None:
+                rows.append(
+                    (
+                        np.array(positions, dtype=np.float32).reshape(-1, 3),
+                        np.array(triangles or [], dtype=np.uint32).reshape(-1, 3),
+                        np.array(normals or [], dtype=np.float32).reshape(-1, 3),
+                    )
+                )
+    return rows
+
+
+def read_rrd_views(rrd_path: Path | str) -> dict[str, dict[str, object]]:
+    """View name -> {"kind", "origin", "contents"} of the last blueprint in an .rrd."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(Path(rrd_path))
+    # Blueprint stores are listed in no particular order; the last one sent holds the newest chunk
+    # (chunk ids are TUIDs: "chunk_" + 32 hex digits, nanoseconds since the epoch first).
+    chunks = [list(reader.stream(store=store)) for store in reader.blueprints()]
+    if not chunks:
+        return {}
+    props: dict[str, dict[str, object]] = {}
+    newest = max(chunks, key=lambda cs: max((int(c.id.removeprefix("chunk_"), 16) for c in cs), default=0))
+    for chunk in newest:
+        batch = chunk.to_record_batch()
+        for column in batch.schema.names:
+            if column.startswith(("ViewBlueprint:", "ViewContents:")):
+                last = [v for v in batch.column(column).to_pylist() if v is not None]
+                if last:
+                    view = chunk.entity_path.removesuffix("/ViewContents")
+                    props.setdefault(view, {})[column.split(":", 1)[1]] = last[-1]
+    return {
+        str(p.get("display_name", [view])[0]): {
+            "kind": p.get("class_identifier", [""])[0],
+            "origin": p.get("space_origin", [""])[0],
+            "contents": list(p.get("query", [])),
+        }
+        for view, p in props.items()
+    }

@@ -7,9 +7,10 @@ configure fails to connect with DeviceNotConfiguredError, before any run directo
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
+from hardware.bh262.hand import BH8SerialHand
+from hardware.rig_config import RigConfig
 from twin.interface.backend import Backend, Clock
 from twin.interface.devices import Hand, HandCommand, HandReading
 from twin.interface.errors import DeviceError, DeviceNotConfiguredError
@@ -23,6 +24,10 @@ class WallClock(Clock):
     def __init__(self) -> None:
         self._t0 = time.monotonic()
 
+    def start(self) -> None:
+        """Time zero is now."""
+        self._t0 = time.monotonic()
+
     def now(self) -> float:
         """Seconds since the run started."""
         return time.monotonic() - self._t0
@@ -32,13 +37,6 @@ class WallClock(Clock):
         delay = t_s - self.now()
         if delay > 0:
             time.sleep(delay)
-
-
-@dataclass(frozen=True, kw_only=True)
-class HardwareConfig:
-    """The lab's rig: which devices are attached where. Nothing is configured by default."""
-
-    hand: HandConfig = field(default_factory=HandConfig)
 
 
 class UnconfiguredHand(Hand):
@@ -56,8 +54,8 @@ class UnconfiguredHand(Hand):
 
     def _connect(self) -> None:
         raise DeviceNotConfiguredError(
-            "hardware backend: no BH8 hand is configured on this rig "
-            "(this version ships no serial driver; use --backend sim)"
+            "hardware backend: no BH8 hand is configured on this rig: "
+            "pass --hand PORT or a --rig file with a [hand] port (try `twin emulate rig`)"
         )
 
     def _disconnect(self) -> None:
@@ -79,14 +77,25 @@ class UnconfiguredHand(Hand):
 
 
 class HardwareBackend(Backend):
-    """Real devices on wall time."""
+    """Real devices (or their emulators) on wall time."""
 
     name = "hardware"
 
-    def __init__(self, config: HardwareConfig | None = None) -> None:
-        self.config = config or HardwareConfig()
-        self.hand = UnconfiguredHand(self.config.hand)
+    def __init__(self, config: RigConfig | None = None) -> None:
+        self.config = config or RigConfig()
         self._clock = WallClock()
+        port = self.config.hand_port
+        if port is None:
+            self.hand: Hand = UnconfiguredHand(self.config.hand)
+        else:
+            self.hand = BH8SerialHand(
+                self.config.hand,
+                port.port,
+                self._clock,
+                initialize=port.initialize,
+                watchdog_cycles=port.watchdog_cycles,
+                lcvc=port.lcvc,
+            )
 
     @property
     def clock(self) -> Clock:
@@ -95,4 +104,13 @@ class HardwareBackend(Backend):
 
     def metadata(self) -> dict[str, Any]:
         """Ports and settings of this rig."""
-        return {"backend": self.name}
+        meta: dict[str, Any] = {"backend": self.name, "rig": self.config.to_json()}
+        if isinstance(self.hand, BH8SerialHand):
+            meta["hand_driver"] = self.hand.metadata()
+        return meta
+
+    def diagnostics(self) -> dict[str, Any]:
+        """Cycles the hand driver had to recover, and why."""
+        if isinstance(self.hand, BH8SerialHand):
+            return {"hand_recoveries": list(self.hand.recoveries)}
+        return {}

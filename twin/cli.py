@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from twin.interface.errors import TwinError
+from twin.interface.errors import ConfigError, TwinError
 
 EXIT_USAGE = 2
 
@@ -50,11 +50,23 @@ def build_parser() -> argparse.ArgumentParser:
     c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
     c.add_argument("--object", default="block", help="library object (see `twin objects`)")
     c.add_argument("--backend", choices=("sim", "hardware"), default="sim")
+    c.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
+    c.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
     c.add_argument("--duration", type=float, default=10.0, metavar="S", help="run length (s)")
     c.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
     c.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
     _add_foam_overrides(c)
+
+    p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
+    p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
+    p.add_argument("--baud", type=int, default=9600, help="rate the hand powers up at (default 9600)")
+    p.add_argument("--port", default="pty", metavar="pty|tcp:PORT", help="where to serve (default pty)")
+    p.add_argument("--faults", metavar="SPEC", help="inject faults, e.g. garbage@40,drop@80,vanish@200")
+    p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the twin's sensor noise")
+    p.add_argument("--rig-file", type=Path, metavar="FILE", help="also write a rig.toml pointing here")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
 
     p = sub.add_parser("info", help="summarize a run directory")
     p.add_argument("run_dir", type=Path, metavar="DIR")
@@ -117,14 +129,23 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
 
     foam = _foam_from_args(args)
     run_dir = args.out or default_run_dir("compress", foam.name)
+    safety = None
     if args.backend == "sim":
+        if args.hand or args.rig:
+            raise ConfigError("--hand and --rig need --backend hardware")
         from twin.sim.backend import SimBackend
 
         backend = SimBackend(foam, seed=args.seed)
     else:
         from hardware.backend import HardwareBackend
+        from hardware.rig_config import RigConfig, load_rig
+        from twin.safety import SafetyLayer
 
-        backend = HardwareBackend()
+        rig = load_rig(args.rig) if args.rig else RigConfig()
+        if args.hand:
+            rig = rig.with_hand_port(args.hand)
+        backend = HardwareBackend(rig)
+        safety = SafetyLayer(rig.limits)
     profile = CompressProfile()
     experiment = {"name": "compress", "object": foam.name, "profile": profile.to_json()}
     outcome = _with_progress(
@@ -138,6 +159,7 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             run_dir=run_dir,
             experiment=experiment,
             progress=progress,
+            safety=safety,
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
@@ -160,6 +182,56 @@ def _with_progress(duration_s: float, show: bool, job):  # noqa: ANN001
     with Progress(*columns, transient=False) as bar:
         task = bar.add_task("run time", total=duration_s)
         return job(lambda t_s: bar.update(task, completed=min(t_s, duration_s)))
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    """`twin emulate hand|rig`: serve the twin-backed emulators until Ctrl-C (or --duration)."""
+    import time
+
+    from hardware.bh262.emulator import make_hand_emulator
+    from hardware.bh262.firmware import SUPPORTED_BAUD
+    from hardware.rig_config import rig_toml
+    from twin.sim.foam import get_object
+
+    if args.baud not in SUPPORTED_BAUD:
+        raise ConfigError(f"--baud {args.baud}: not one of {', '.join(map(str, SUPPORTED_BAUD))}")
+    where = args.port
+    if where != "pty" and not (where.startswith("tcp:") and where[4:].isdigit() and int(where[4:]) < 65536):
+        raise ConfigError(f"--port {where!r}: expected pty or tcp:PORT (tcp:0 picks a free port)")
+    if args.duration is not None and not args.duration > 0:
+        raise ConfigError("--duration must be > 0 s")
+    object_name = None if args.object == "none" else args.object
+    if object_name:
+        get_object(object_name)  # unknown names fail here, in one line
+
+    def event(message: str) -> None:
+        print(f"[emulator] {message}", flush=True)
+
+    emulator = make_hand_emulator(
+        object_name, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
+    )
+    try:
+        address = emulator.serve_pty() if where == "pty" else emulator.serve_tcp(int(where[4:]))
+    except OSError as exc:
+        emulator.close()
+        raise ConfigError(f"--port {where}: {exc.strerror or exc}") from None
+    print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {args.object})", flush=True)
+    if args.what == "rig":
+        print("tactile: not emulated yet (issue 4); cameras: not emulated yet (issue 5)", flush=True)
+    if args.rig_file:
+        args.rig_file.write_text(rig_toml(address, baud=args.baud))
+        print(f"rig file: {args.rig_file}", flush=True)
+    print("ready; Ctrl-C stops", flush=True)
+    deadline = time.monotonic() + args.duration if args.duration else float("inf")
+    try:
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emulator.close()
+    print("emulator stopped", flush=True)
+    return 0
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -250,7 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `twin` console script."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     args = build_parser().parse_args(argv)
-    handlers = {"objects": cmd_objects, "info": cmd_info, "view": cmd_view}
+    handlers = {"objects": cmd_objects, "info": cmd_info, "view": cmd_view, "emulate": cmd_emulate}
     try:
         if args.command == "run":
             return cmd_run_compress(args)

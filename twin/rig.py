@@ -18,6 +18,7 @@ import numpy as np
 from twin import units
 from twin.interface.backend import Backend
 from twin.interface.devices import FINGER_LABELS, HandCommand, HandReading
+from twin.interface.errors import DeviceError
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 
@@ -127,6 +128,7 @@ class Rig:
         self._queue: list[_Event] = []
         self._order = 0
         self.samples: dict[str, int] = {}
+        self.stop_reason: str | None = None
         hand_spec = backend.hand.spec
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:
@@ -147,6 +149,7 @@ class Rig:
     ) -> RigResult:
         """Sample, deliver and control until duration_s on the run clock."""
         clock = self.backend.clock
+        clock.start()
         hand = self.backend.hand
         period = hand.spec.period_s
         latency = hand.spec.latency_s if self.backend.is_simulated else 0.0
@@ -158,21 +161,36 @@ class Rig:
             for k in range(n_scene + 1):
                 self._push(k / self.scene_rate_hz, "scene")
         # Only samples up to duration_s are scheduled; their deliveries (latency later) all complete.
-        while self._queue:
-            event = heapq.heappop(self._queue)
-            clock.advance_to(event.t_s)
-            if event.kind == "sample_hand":
-                reading = hand.read()
-                truth = self.backend.ground_truth()
-                self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
-            elif event.kind == "deliver_hand":
-                reading, truth = event.payload
-                self._deliver(reading, truth, controller)
-                if progress is not None:
-                    progress(event.t_s)
-            elif event.kind == "scene":
-                self.scene_logger(event.t_s)
+        try:
+            while self._queue:
+                event = heapq.heappop(self._queue)
+                clock.advance_to(event.t_s)
+                if event.kind == "sample_hand":
+                    reading = hand.read()
+                    truth = self.backend.ground_truth()
+                    self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
+                elif event.kind == "deliver_hand":
+                    reading, truth = event.payload
+                    self._deliver(reading, truth, controller)
+                    if progress is not None:
+                        progress(event.t_s)
+                elif event.kind == "scene":
+                    self.scene_logger(event.t_s)
+        except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
+            self.stop_reason = f"{type(exc).__name__}: {exc}"
+            self._safe_stop()
+            raise
         return RigResult(dict(self.samples), controller.phase, duration_s)
+
+    def _safe_stop(self) -> None:
+        """Idle the hand (T on hardware) before anything else; a hand that cannot be reached is left."""
+        hand = self.backend.hand
+        if not hand.is_connected:
+            return
+        try:
+            hand.idle()
+        except (DeviceError, OSError) as exc:
+            self.stop_reason = f"{self.stop_reason}; idling the hand failed: {exc}"
 
     def _deliver(self, reading: HandReading, truth: dict | None, controller: Controller) -> None:
         physical = units.hand_reading_to_physical(

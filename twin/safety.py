@@ -14,7 +14,7 @@ import numpy as np
 
 from twin import units
 from twin.interface.devices import HandCommand, HandReading
-from twin.interface.errors import TwinError
+from twin.interface.errors import ConfigError, TwinError
 
 
 class UnsafeCommandError(TwinError):
@@ -29,6 +29,20 @@ class SafetyLimits:
     spread_counts: tuple[float, float] = (0.0, float(units.SPREAD_FULL_COUNTS))
     max_velocity_counts_s: float = 17_000.0
     max_fingertip_force_kg: float = units.FINGERTIP_FORCE_LIMIT_KG
+
+    def __post_init__(self) -> None:
+        for name in ("finger_counts", "spread_counts"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+                raise ConfigError(f"limits {name} must be finite with 0 <= low < high, got {[lo, hi]}")
+        if not self.finger_counts[1] <= units.FINGER_MAX_COUNTS:
+            raise ConfigError(f"limits finger_counts above the firmware's {units.FINGER_MAX_COUNTS} counts")
+        if not self.spread_counts[1] <= units.SPREAD_FULL_COUNTS:
+            raise ConfigError(f"limits spread_counts above the firmware's {units.SPREAD_FULL_COUNTS} counts")
+        for name in ("max_velocity_counts_s", "max_fingertip_force_kg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"limits {name} must be a finite number > 0, got {value}")
 
 
 class SafetyLayer:

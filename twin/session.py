@@ -21,6 +21,7 @@ from twin.interface.backend import Backend
 from twin.interface.errors import ConfigError
 from twin.recording import RunWriter
 from twin.rig import Rig, RigResult
+from twin.safety import SafetyLayer
 
 RRD_NAME = "run.rrd"
 
@@ -82,6 +83,7 @@ def run_experiment(
     experiment: dict[str, Any],
     progress: Callable[[float], None] | None = None,
     argv: list[str] | None = None,
+    safety: SafetyLayer | None = None,
 ) -> RunOutcome:
     """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd."""
     from twin.viz.rerun_log import RunRecording
@@ -105,10 +107,11 @@ def run_experiment(
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
             try:
                 scene_logger = _scene_logger(backend, recording)
-                rig = Rig(backend, writer, recording, scene_logger, phases=phases)
+                rig = Rig(backend, writer, recording, scene_logger, phases=phases, safety=safety)
                 result = rig.run(controller, duration_s, progress)
-                writer.update_metadata(final_phase=result.final_phase, **backend.diagnostics())
-            finally:
+                writer.update_metadata(final_phase=result.final_phase)
+            finally:  # what went wrong is kept even when the run failed
+                writer.update_metadata(**backend.diagnostics())
                 recording.close()
         return RunOutcome(run_dir, rrd_path, result, "complete")
     finally:

@@ -13,14 +13,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntFlag
 
+from twin.interface.errors import DeviceError
+
 PROMPT = b"=> "
 CR = b"\r"
 EXIT_REALTIME = b"\x03"
 MAX_REPLY_BYTES = 4096
 
 
-class ProtocolError(Exception):
-    """Bytes that do not follow the BH8-262 protocol."""
+class ProtocolError(DeviceError):
+    """Bytes that do not follow the BH8-262 protocol (a DeviceError: the CLI reports it in one line)."""
 
 
 class ReplyFormatError(ProtocolError):

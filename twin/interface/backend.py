@@ -26,6 +26,9 @@ class Clock(ABC):
     def advance_to(self, t_s: float) -> None:
         """Bring the world to time t_s: step the physics (sim) or sleep (hardware)."""
 
+    def start(self) -> None:  # noqa: B027  (optional hook: most clocks need nothing)
+        """The run starts now: a wall clock restarts from zero; sim time is left as it is."""
+
 
 class Backend(ABC):
     """A set of devices on one clock."""

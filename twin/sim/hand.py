@@ -59,10 +59,22 @@ class SimHand(Hand):
         self._require_connection()
         counts = np.clip(command.position_counts, 0.0, MAX_COUNTS)
         velocity = float(np.clip(command.max_velocity_counts_s, 1.0, self.config.max_velocity_counts_s))
-        self._target_rad = counts * COUNTS_TO_RAD
+        self.drive(counts, np.full(4, velocity))
+        return HandCommand(counts, velocity)
+
+    def drive(self, target_counts: np.ndarray, velocity_counts_s: np.ndarray) -> None:
+        """Per-motor set points and slew rates (the firmware's motor servos; used by the emulator)."""
+        self._require_connection()
+        self._target_rad = np.clip(np.asarray(target_counts, dtype=float), 0.0, MAX_COUNTS) * COUNTS_TO_RAD
+        velocity = np.clip(
+            np.abs(np.asarray(velocity_counts_s, dtype=float)), 0.0, self.config.max_velocity_counts_s
+        )
         self._slew_rad_s = velocity * COUNTS_TO_RAD
         self._hold = False
-        return HandCommand(counts, velocity)
+
+    def motor_setpoint_counts(self) -> np.ndarray:
+        """(4,) where each motor's servo is heading now (counts)."""
+        return self.world.data.ctrl[self._act] / COUNTS_TO_RAD
 
     def idle(self) -> None:
         """T: motors stop driving. The BH8's worm drives are not back-drivable, so links hold."""

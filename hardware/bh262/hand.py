@@ -1,0 +1,233 @@
+"""The BH8-262 behind the shared Hand interface: RealTime feedback in, position set points out.
+
+The 262's RealTime mode controls motor velocity (LCV, LCPG), so the host turns each position set
+point into velocities: every cycle it commands the velocity that brings the motor's set point to the
+target within one period, limited by the command's maximum velocity. The set point is integrated
+from the velocities actually sent, so a finger stalled on an object keeps the force it built up
+instead of winding up to full torque: the same motor model as the twin's position servo.
+
+Recovery: a RealTime reply that is missing, short or noisy is retried after leaving and re-entering
+LOOP; after `watchdog_cycles` consecutive cycles without valid feedback the read fails with
+WatchdogError and the backend terminates the motors (T). ERR replies and a lost port stop at once.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from hardware.bh262.driver import BH262, HandTimeoutError, PortLostError, PortSettings
+from hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig, ReplyFormatError
+from twin import units
+from twin.interface.backend import Clock
+from twin.interface.devices import Hand, HandCommand, HandReading
+from twin.interface.errors import ConfigError, DeviceError
+from twin.interface.hand_spec import HandConfig, hand_device_spec
+from twin.interface.specs import DeviceSpec
+
+log = logging.getLogger(__name__)
+
+MAX_COUNTS = np.array([units.FINGER_MAX_COUNTS] * 3 + [units.SPREAD_FULL_COUNTS], dtype=float)
+DEFAULT_REALTIME = RealTimeConfig(
+    motors=(1, 2, 3, 4), control=("LCV", "LCPG"), feedback=("LFV", "LFS", "LFAP")
+)
+VELOCITY_UNIT_S = 0.010
+"""RealTime velocities are counts per 10 ms (BHand API; bh262_protocol.md (?)), as the hand config."""
+
+
+class WatchdogError(DeviceError):
+    """No valid feedback from the hand for too many consecutive cycles."""
+
+
+class BH8SerialHand(Hand):
+    """A BH8-262 on a serial port, in RealTime mode while connected."""
+
+    def __init__(
+        self,
+        config: HandConfig,
+        port: PortSettings,
+        clock: Clock,
+        *,
+        realtime: RealTimeConfig = DEFAULT_REALTIME,
+        initialize: bool = True,
+        watchdog_cycles: int = 3,
+        lcvc: int = 1,
+        lfvc: int = 1,
+        position_gain: float = 1.0,
+    ) -> None:
+        super().__init__()
+        if realtime.motors != (1, 2, 3, 4):
+            raise ConfigError("the hand interface needs all four motors in the RealTime loop (1234LOOP)")
+        missing = {"LCV", "LCPG"} - set(realtime.control) or {"LFV", "LFS", "LFAP"} - set(realtime.feedback)
+        if missing:
+            raise ConfigError(f"the hand interface needs RealTime fields {', '.join(sorted(missing))}")
+        if watchdog_cycles < 1:
+            raise ConfigError("watchdog_cycles must be >= 1")
+        if abs(config.velocity_sample_time_s - VELOCITY_UNIT_S) > 1e-12:
+            raise ConfigError("the BH8-262 reports velocity per 10 ms: set velocity_sample_time_s = 0.01")
+        self.config = config
+        self.port = port
+        self.clock = clock
+        self.realtime = realtime
+        self.initialize = initialize
+        self.watchdog_cycles = watchdog_cycles
+        self.lcvc, self.lfvc = lcvc, lfvc
+        self.position_gain = position_gain
+        """Fraction of the set-point error closed per period (1: deadbeat, as the twin's slew)."""
+        self.bh = BH262(port)
+        self._spec = hand_device_spec(config)
+        self.recoveries: list[str] = []
+        """Why each recovered cycle had to be retried (garbage, timeout, ...)."""
+        self._target = np.zeros(4)
+        self._max_velocity = config.max_velocity_counts_s
+        self._setpoint: np.ndarray | None = None
+        self._velocity = np.zeros(4)
+        self._t_sent: float | None = None
+        self._commanded_since_read = True
+
+    @property
+    def spec(self) -> DeviceSpec:
+        """Same declared channels as the sim hand."""
+        return self._spec
+
+    @property
+    def max_wire_velocity_counts_s(self) -> float:
+        """Fastest velocity an int8 LCV can carry with the configured LCVC."""
+        return 127 * self.lcvc / VELOCITY_UNIT_S
+
+    def wire_time_per_period_s(self, baud: int) -> float:
+        """Bytes one period puts on the wire: an A cycle and a c cycle (10 bits per byte)."""
+        rt = self.realtime
+        nbytes = (1 + rt.feedback_size) + (1 + rt.control_size + 1)
+        return nbytes * 10.0 / baud
+
+    def _connect(self) -> None:
+        baud = self.port.switch_baud or self.port.baud
+        need = self.wire_time_per_period_s(baud)
+        if need > 0.8 * self.spec.period_s:
+            raise ConfigError(
+                f"at {baud} baud one RealTime period needs {need * 1e3:.1f} ms of wire time, more than 80% "
+                f"of the {self.spec.period_s * 1e3:.1f} ms period: switch to 38400 baud or lower rate_hz"
+            )
+        self.bh.open()
+        try:
+            if self.initialize:
+                self.bh.initialize()
+            self.bh.enter_realtime(self.realtime, lcvc=self.lcvc, lfvc=self.lfvc)
+        except BaseException:
+            self.bh.close()
+            raise
+        self._setpoint = None
+        self._commanded_since_read = True
+
+    def _disconnect(self) -> None:
+        try:
+            self.idle()
+        except DeviceError as exc:
+            log.warning("could not idle the hand on disconnect: %s", exc)
+        finally:
+            self.bh.close()
+
+    def read(self) -> HandReading:
+        """One RealTime feedback cycle (with a servo update if no command came since the last read)."""
+        self._require_connection()
+        t_s = self.clock.now()
+        control = None if self._commanded_since_read else self._servo(t_s)
+        self._commanded_since_read = False
+        last: Exception | None = None
+        for _ in range(self.watchdog_cycles):
+            try:
+                feedback = self.bh.cycle(control)
+                break
+            except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
+                last = exc
+                self.recoveries.append(f"{type(exc).__name__}: {exc}")
+                log.warning("hand feedback lost (%s); re-entering RealTime mode", exc)
+                try:
+                    self.bh.recover_realtime()
+                except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as again:
+                    last = again
+        else:
+            raise WatchdogError(
+                f"no valid feedback from the hand for {self.watchdog_cycles} cycles (last: {last}); "
+                "motors terminated"
+            )
+        fields = feedback.fields
+        position = np.asarray(fields["LFAP"], dtype=np.int32)
+        if self._setpoint is None:
+            self._setpoint = position.astype(float)
+            self._target = position.astype(float)
+        return HandReading(
+            t_s=t_s,
+            position_counts=position,
+            velocity_counts=np.asarray(fields["LFV"], dtype=np.int32) * self.lfvc,
+            strain_counts=np.asarray(fields["LFS"][:3], dtype=np.int32),
+        )
+
+    def command(self, command: HandCommand) -> HandCommand:
+        """New set points: velocities go out at once in a control-only (c) cycle."""
+        self._require_connection()
+        target = np.clip(command.position_counts, 0.0, MAX_COUNTS)
+        velocity = float(min(command.max_velocity_counts_s, self.max_wire_velocity_counts_s))
+        self._target, self._max_velocity = target, velocity
+        control = self._servo(self.clock.now())
+        try:
+            self.bh.cycle(control, feedback=False)
+        except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
+            # The next read() retries and re-sends the servo velocities with its control block.
+            self.recoveries.append(f"{type(exc).__name__}: {exc}")
+            self.bh.recover_realtime()
+            self._commanded_since_read = False
+            return HandCommand(target, velocity)
+        self._commanded_since_read = True
+        return HandCommand(target, velocity)
+
+    def _servo(self, t_s: float) -> dict[str, list[int]]:
+        """LCV/LCPG per motor: the velocity that closes the set-point error within one period."""
+        if self._setpoint is None:
+            return {"LCV": [0] * 4, "LCPG": [0] * 4}
+        if self._t_sent is not None:
+            dt = max(0.0, t_s - self._t_sent)
+            self._setpoint = np.clip(self._setpoint + self._velocity * dt, 0.0, MAX_COUNTS)
+        self._t_sent = t_s
+        wanted = self.position_gain * (self._target - self._setpoint) / self.spec.period_s
+        limit = min(self._max_velocity, self.max_wire_velocity_counts_s)
+        lcv = np.round(np.clip(wanted, -limit, limit) * VELOCITY_UNIT_S / self.lcvc).astype(int)
+        lcv = np.clip(lcv, -127, 127)
+        self._velocity = lcv * self.lcvc / VELOCITY_UNIT_S
+        gain = [100] * 4
+        return {"LCV": lcv.tolist(), "LCPG": gain}
+
+    def idle(self) -> None:
+        """Leave RealTime mode and send T: the motors stop driving (the worm drives hold)."""
+        if not self.bh.is_open:
+            return
+        try:
+            if self.bh.realtime is not None:
+                self.bh.leave_realtime()
+        except (HandTimeoutError, FeedbackFormatError, ReplyFormatError):
+            self.bh.realtime = None
+            self.bh.resync()
+        self.bh.terminate()
+
+    def metadata(self) -> dict:
+        """Port, rate, RealTime layout and recoveries, for run.json."""
+        rt = self.realtime
+        return {
+            "port": self.port.url,
+            "baud": self.bh.baud,
+            "realtime": {
+                "motors": list(rt.motors),
+                "control": list(rt.control),
+                "feedback": list(rt.feedback),
+                "lcvc": self.lcvc,
+                "lfvc": self.lfvc,
+                "wire_limit_hz": rt.wire_limit_hz(self.bh.baud),
+            },
+            "watchdog_cycles": self.watchdog_cycles,
+            "recoveries": list(self.recoveries),
+        }
+
+
+__all__ = ["BH8SerialHand", "PortLostError", "WatchdogError"]

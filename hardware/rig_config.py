@@ -1,0 +1,189 @@
+"""rig.toml: a lab writes its rig once (ports, rates, limits, calibration files).
+
+Every key is checked when the file is read: unknown keys, wrong types and impossible values fail
+with one line naming the file and the key, before anything is opened or written. Example:
+
+    [hand]
+    port = "/dev/ttyUSB0"     # or socket://host:port, or bh8emu:// (in-process emulator)
+    baud = 9600               # the rate the hand powers up at
+    switch_baud = 38400       # switch after connecting (0 keeps `baud`)
+    rate_hz = 30.0
+    watchdog_cycles = 3
+    initialize = true         # send HI on connect (it opens the fingers)
+
+    [limits]
+    finger_counts = [0, 17800]
+    spread_counts = [0, 3140]
+    max_velocity_counts_s = 17000
+    max_fingertip_force_kg = 2.0
+
+    [calibration]             # files loaded by later devices (tactile lines, stereo intrinsics)
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hardware.bh262.driver import PortSettings
+from twin.interface.errors import ConfigError
+from twin.interface.hand_spec import HandConfig
+from twin.safety import SafetyLimits
+
+_HAND_KEYS = {
+    "port": str,
+    "baud": int,
+    "switch_baud": int,
+    "rate_hz": float,
+    "watchdog_cycles": int,
+    "initialize": bool,
+    "timeout_s": float,
+    "realtime_timeout_s": float,
+    "baud_switch_wait_s": float,
+    "lcvc": int,
+}
+_LIMIT_KEYS = {
+    "finger_counts": list,
+    "spread_counts": list,
+    "max_velocity_counts_s": float,
+    "max_fingertip_force_kg": float,
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandPortConfig:
+    """The serial hand of a rig: where it is and how the driver runs it."""
+
+    port: PortSettings
+    watchdog_cycles: int = 3
+    initialize: bool = True
+    lcvc: int = 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class RigConfig:
+    """A lab's rig: the hand (None: no hand configured), the hand's sampling, limits, calibration."""
+
+    hand_port: HandPortConfig | None = None
+    hand: HandConfig = field(default_factory=HandConfig)
+    limits: SafetyLimits = field(default_factory=SafetyLimits)
+    calibration: dict[str, Path] = field(default_factory=dict)
+    source: Path | None = None
+
+    def with_hand_port(self, url: str) -> RigConfig:
+        """The same rig with the hand on `url` (the --hand flag overrides the file)."""
+        if self.hand_port is None:
+            return _replace(self, hand_port=HandPortConfig(port=PortSettings(url=url)))
+        settings = self.hand_port.port
+        port = PortSettings(**{**vars(settings), "url": url})
+        return _replace(self, hand_port=_replace(self.hand_port, port=port))
+
+    def to_json(self) -> dict[str, Any]:
+        """What run.json records about the rig."""
+        hp = self.hand_port
+        return {
+            "source": str(self.source) if self.source else None,
+            "hand_port": None
+            if hp is None
+            else {
+                "url": hp.port.url,
+                "baud": hp.port.baud,
+                "switch_baud": hp.port.switch_baud,
+                "watchdog_cycles": hp.watchdog_cycles,
+            },
+            "limits": vars(self.limits),
+            "calibration": {k: str(v) for k, v in self.calibration.items()},
+        }
+
+
+def _replace(obj: Any, **changes: Any) -> Any:
+    import dataclasses
+
+    return dataclasses.replace(obj, **changes)
+
+
+def _typed(where: str, table: dict, schema: dict) -> dict:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: expected a table")
+    unknown = set(table) - set(schema)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; known: {', '.join(schema)}")
+    out = {}
+    for key, value in table.items():
+        kind = schema[key]
+        ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value, ok = float(value), True
+        if not ok:
+            raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def load_rig(path: Path | str) -> RigConfig:
+    """Read and check a rig.toml; ConfigError (one line) on any problem."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"--rig {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"--rig {path}: cannot read ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"--rig {path}: not valid TOML ({exc})") from None
+    unknown = set(data) - {"hand", "limits", "calibration"}
+    if unknown:
+        raise ConfigError(
+            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; known: hand, limits, calibration"
+        )
+    hand = _typed(f"{path}: [hand]", data.get("hand", {}), _HAND_KEYS)
+    limits = _typed(f"{path}: [limits]", data.get("limits", {}), _LIMIT_KEYS)
+    calibration = data.get("calibration", {})
+    if not isinstance(calibration, dict) or not all(isinstance(v, str) for v in calibration.values()):
+        raise ConfigError(f"{path}: [calibration] maps names to file paths (strings)")
+    for key in ("finger_counts", "spread_counts"):
+        if key in limits:
+            pair = limits[key]
+            if len(pair) != 2 or not all(isinstance(v, int | float) for v in pair) or not pair[0] < pair[1]:
+                raise ConfigError(f"{path}: [limits].{key} must be [low, high] with low < high")
+            limits[key] = (float(pair[0]), float(pair[1]))
+    try:
+        safety = SafetyLimits(**limits)
+        hand_config = HandConfig(rate_hz=hand.pop("rate_hz", HandConfig().rate_hz))
+        hand_port = None
+        if "port" in hand:
+            port_keys = ("baud", "timeout_s", "realtime_timeout_s", "baud_switch_wait_s")
+            settings = {k: hand[k] for k in port_keys if k in hand}
+            if "switch_baud" in hand:
+                settings["switch_baud"] = hand["switch_baud"] or None
+            hand_port = HandPortConfig(
+                port=PortSettings(url=hand["port"], **settings),
+                **{k: hand[k] for k in ("watchdog_cycles", "initialize", "lcvc") if k in hand},
+            )
+        elif set(hand) - {"rate_hz"}:
+            raise ConfigError(f"{path}: [hand] settings given without a port")
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    base = path.parent
+    return RigConfig(
+        hand_port=hand_port,
+        hand=hand_config,
+        limits=safety,
+        calibration={k: (base / v) for k, v in calibration.items()},
+        source=path,
+    )
+
+
+def rig_toml(hand_url: str, *, baud: int = 9600, switch_baud: int | None = 38400) -> str:
+    """A rig.toml for a hand on `hand_url` (what `twin emulate rig --rig-file` writes)."""
+    return (
+        "# written by `twin emulate rig`\n"
+        "[hand]\n"
+        f'port = "{hand_url}"\n'
+        f"baud = {baud}\n"
+        f"switch_baud = {switch_baud or 0}\n"
+        "rate_hz = 30.0\n"
+        "watchdog_cycles = 3\n"
+    )

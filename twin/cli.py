@@ -72,6 +72,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", type=Path, metavar="DIR")
     p.add_argument("--json", action="store_true")
 
+    p = sub.add_parser("compare", help="compare two runs of one scenario (e.g. sim vs hardware)")
+    p.add_argument("run_a", type=Path, metavar="DIR_A", help="reference run (e.g. the sim backend's)")
+    p.add_argument("run_b", type=Path, metavar="DIR_B")
+    p.add_argument("--json", action="store_true")
+
     p = sub.add_parser("view", help="open a run in the Rerun viewer")
     p.add_argument("run_dir", type=Path, metavar="DIR")
     return parser
@@ -299,6 +304,36 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    """`twin compare A B`: same streams and units? finger positions after time alignment."""
+    from twin.compare import describe, position_agreement, stream_mismatches
+
+    mismatches = stream_mismatches(args.run_a, args.run_b)
+    agreement = position_agreement(args.run_a, args.run_b)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "mismatches": [vars(m) for m in mismatches],
+                    "lag_s": agreement.lag_s,
+                    "max_error_counts": agreement.max_error_counts.tolist(),
+                    "rms_error_counts": agreement.rms_error_counts.tolist(),
+                    "travel_counts": agreement.travel_counts.tolist(),
+                    "max_relative_error": agreement.max_relative_error,
+                },
+                indent=2,
+            )
+        )
+        return 0
+    if mismatches:
+        for m in mismatches:
+            print(f"differs: {m.stream}.{m.field}: {m.a} vs {m.b}")
+    else:
+        print("streams and units: the same (hand, command)")
+    print("finger positions: " + describe(agreement))
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     """`twin view DIR`: the Rerun viewer, or how to get one when there is no display."""
     from twin.session import RRD_NAME
@@ -322,7 +357,13 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `twin` console script."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     args = build_parser().parse_args(argv)
-    handlers = {"objects": cmd_objects, "info": cmd_info, "view": cmd_view, "emulate": cmd_emulate}
+    handlers = {
+        "objects": cmd_objects,
+        "info": cmd_info,
+        "view": cmd_view,
+        "emulate": cmd_emulate,
+        "compare": cmd_compare,
+    }
     try:
         if args.command == "run":
             return cmd_run_compress(args)

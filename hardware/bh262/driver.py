@@ -348,14 +348,12 @@ class BH262:
         if not raw.endswith(PROMPT):
             raise HandTimeoutError("no prompt after leaving RealTime mode")
 
-    def recover_realtime(self) -> None:
-        """After noise or a missing reply: leave RealTime, find the prompt, enter LOOP again."""
-        config = self.realtime
-        if config is None:
-            raise DeviceError("not in RealTime mode")
+    def recover_realtime(self, config: RealTimeConfig) -> None:
+        """After noise or a missing reply: leave RealTime (if still in it), find the prompt, LOOP again."""
         timeout = self.settings.recovery_timeout_s
-        self._write(EXIT_REALTIME)
-        self._read_until_prompt(timeout)  # whatever was in flight, up to the prompt
-        self.realtime = None
+        if self.realtime is not None:
+            self._write(EXIT_REALTIME)
+            self._read_until_prompt(timeout)  # whatever was in flight, up to the prompt
+            self.realtime = None
         self.resync(timeout)
         self._loop(config, timeout)

@@ -174,6 +174,9 @@ class Firmware:
         self.loop: LoopState | None = None
         self.commands: list[str] = []
         """Every supervisory line received, in order (what a test or a log looks at)."""
+        self.controls_received = 0
+        self.last_control: dict[int, dict[str, int]] = {}
+        """The latest RealTime control block, decoded per motor."""
         self._reset_properties()
         self._last_reported = np.zeros(4)
 
@@ -407,6 +410,7 @@ class Firmware:
                 fmt = ">" + "".join(_CONTROL_FMT[f] for f in fields)
                 values = dict(zip(fields, struct.unpack_from(fmt, data, offset), strict=True))
                 offset += struct.calcsize(fmt)
+                self.last_control[m] = values
                 props = self.props[m]
                 gain = values.get("LCPG", props["FPG"])
                 if "LCT" in values:  # position offset from the present position (?)
@@ -420,6 +424,7 @@ class Firmware:
                 goal[m - 1] = limit if v > 0 else (0 if v < 0 else goal[m - 1])
                 speed[m - 1] = abs(v)
             hand.drive(goal, speed)
+        self.controls_received += 1
 
     def feedback_block(self) -> bytes:
         """'*' and the enabled feedback of every active motor (and the temperature with LFT)."""

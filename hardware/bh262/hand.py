@@ -13,6 +13,7 @@ WatchdogError and the backend terminates the motors (T). ERR replies and a lost 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 
 import numpy as np
@@ -138,6 +139,8 @@ class BH8SerialHand(Hand):
         last: Exception | None = None
         for _ in range(self.watchdog_cycles):
             try:
+                if self.bh.realtime is None:  # an earlier recovery did not get back into LOOP
+                    self.bh.recover_realtime(self.realtime)
                 feedback = self.bh.cycle(control)
                 break
             except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
@@ -145,7 +148,7 @@ class BH8SerialHand(Hand):
                 self.recoveries.append(f"{type(exc).__name__}: {exc}")
                 log.warning("hand feedback lost (%s); re-entering RealTime mode", exc)
                 try:
-                    self.bh.recover_realtime()
+                    self.bh.recover_realtime(self.realtime)
                 except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as again:
                     last = again
         else:
@@ -177,7 +180,8 @@ class BH8SerialHand(Hand):
         except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
             # The next read() retries and re-sends the servo velocities with its control block.
             self.recoveries.append(f"{type(exc).__name__}: {exc}")
-            self.bh.recover_realtime()
+            with contextlib.suppress(HandTimeoutError, FeedbackFormatError, ReplyFormatError):
+                self.bh.recover_realtime(self.realtime)  # else the next read() tries again
             self._commanded_since_read = False
             return HandCommand(target, velocity)
         self._commanded_since_read = True
@@ -193,7 +197,8 @@ class BH8SerialHand(Hand):
         self._t_sent = t_s
         wanted = self.position_gain * (self._target - self._setpoint) / self.spec.period_s
         limit = min(self._max_velocity, self.max_wire_velocity_counts_s)
-        lcv = np.round(np.clip(wanted, -limit, limit) * VELOCITY_UNIT_S / self.lcvc).astype(int)
+        # Truncated toward zero: the hand never moves faster than the command allows.
+        lcv = np.trunc(np.clip(wanted, -limit, limit) * VELOCITY_UNIT_S / self.lcvc).astype(int)
         lcv = np.clip(lcv, -127, 127)
         self._velocity = lcv * self.lcvc / VELOCITY_UNIT_S
         gain = [100] * 4

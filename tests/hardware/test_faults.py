@@ -1,0 +1,108 @@
+"""The fault matrix: each fault injected by the emulator -> recovered, or a safe stop with a clear
+error; either way the recording up to the fault is intact (zero samples lost before it).
+
+The compress experiment runs on the hardware backend against a twin-backed emulator on TCP. Each
+period the driver makes one feedback cycle (A) and one control cycle (c), so RealTime reply 2k-1 is
+the k-th sample's feedback and reply 2k its command's acknowledgement.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments.compress import PHASES, CompressController
+from hardware.backend import HardwareBackend
+from hardware.bh262.driver import PortSettings
+from hardware.bh262.emulator import make_hand_emulator
+from hardware.rig_config import HandPortConfig, RigConfig
+from twin.recording import open_run
+from twin.session import run_experiment
+
+DURATION_S = 3.0
+SAMPLES = int(DURATION_S * 30) + 1
+FAULT_AT = 31  # the 16th sample's feedback: 15 samples are recorded before it
+
+
+def run_with_faults(faults: str, run_dir: Path, object_name: str | None = "block"):
+    emulator = make_hand_emulator(object_name, faults=faults)
+    url = emulator.serve_tcp(0)
+    port = PortSettings(url=url, switch_baud=38400, baud_switch_wait_s=0.05)
+    backend = HardwareBackend(RigConfig(hand_port=HandPortConfig(port=port)))
+    error = None
+    try:
+        run_experiment(
+            backend=backend,
+            controller=CompressController(),
+            phases=PHASES,
+            duration_s=DURATION_S,
+            run_dir=run_dir,
+            experiment={"name": "compress", "faults": faults},
+            argv=["test"],
+        )
+    except Exception as exc:  # the safe stops re-raise after closing the recording
+        error = exc
+    finally:
+        emulator.close()
+    return open_run(run_dir), error, emulator
+
+
+RECOVERED = [
+    "garbage@31",  # noise before a feedback block
+    "garbage@32",  # noise before a command's '*'
+    "drop@31",  # no feedback at all
+    "drop@32",  # no acknowledgement of a command
+    "partial@31",  # half a block
+    "late@31:0.3",  # later than the timeout: the late bytes arrive while recovering
+]
+
+
+@pytest.mark.parametrize("faults", RECOVERED)
+def test_recoverable_faults_lose_no_sample(faults: str, tmp_path: Path):
+    run, error, emulator = run_with_faults(faults, tmp_path / "run")
+    assert error is None
+    assert run.status == "complete"
+    hand = run.stream("hand")
+    assert len(hand.t_s) == SAMPLES
+    assert np.all(np.diff(hand.t_s) > 0)
+    assert len(run.metadata["hand_recoveries"]) >= 1
+    assert emulator.firmware.commands.count("1234LOOP") >= 2  # LOOP re-entered after the fault
+
+
+def test_a_slightly_late_reply_is_just_late(tmp_path: Path):
+    run, error, _ = run_with_faults("late@31:0.02", tmp_path / "run")
+    assert error is None and run.status == "complete"
+    assert len(run.stream("hand").t_s) == SAMPLES
+    assert run.metadata["hand_recoveries"] == []
+
+
+SAFE_STOPS = [
+    ("err@31:8192", "OVER_TEMPERATURE"),  # the hand reports an error: stop, name it
+    ("vanish@31", "hand on socket://"),  # the port disappears
+    ("mute@31", "no valid feedback from the hand for 3 cycles"),  # the watchdog
+]
+
+
+@pytest.mark.parametrize(("faults", "message"), SAFE_STOPS)
+def test_unrecoverable_faults_stop_safely_with_the_data_intact(faults: str, message: str, tmp_path: Path):
+    run, error, _ = run_with_faults(faults, tmp_path / "run")
+    assert error is not None and message in str(error)
+    assert run.status == "failed" and message in run.info["error"]
+    hand = run.stream("hand")
+    assert len(hand.t_s) == (FAULT_AT - 1) // 2  # every sample before the fault, none after
+    assert np.all(np.diff(hand.t_s) > 0)
+    assert len(run.stream("command").t_s) == (FAULT_AT - 1) // 2
+
+
+def test_watchdog_terminates_the_motors_once_the_hand_answers_again(tmp_path: Path):
+    """Feedback stops for 1.5 s: the watchdog stops the run and T reaches the hand."""
+    run, error, emulator = run_with_faults("mute@31:1.5", tmp_path / "run")
+    assert "no valid feedback" in str(error) and run.status == "failed"
+    assert emulator.firmware.commands[-1] == "T"
+    assert emulator.firmware.loop is None
+
+
+def test_err_reply_idles_the_hand_with_t(tmp_path: Path):
+    _, error, emulator = run_with_faults("err@31:16", tmp_path / "run")
+    assert "COULD_NOT_REACH_POSITION" in str(error)
+    assert emulator.firmware.commands[-1] == "T"

@@ -1,0 +1,141 @@
+"""One flag: `twin run compress --backend hardware` against `twin emulate rig` on one machine writes
+the same streams and units as the sim backend, and the fingers move the same way."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hardware.bh262.emulator import make_hand_emulator
+from twin.compare import position_agreement, stream_mismatches
+from twin.recording import open_run
+
+TWIN = [sys.executable, "-m", "twin.cli"]
+
+
+def twin(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([*TWIN, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def emulated_rig(tmp_path: Path):
+    """`twin emulate rig` on a pty, with the rig.toml it writes."""
+    rig_file = tmp_path / "rig.toml"
+    proc = subprocess.Popen(
+        [*TWIN, "emulate", "rig", "--port", "pty", "--rig-file", str(rig_file), "--duration", "120"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("ready"):
+            break
+    assert any(line.startswith("hand: /dev/") for line in lines), lines
+    yield rig_file
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=10)
+
+
+def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
+    sim = twin("run", "compress", "--duration", "10", "--out", "sim", "--no-progress", cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    hw = twin(
+        "run", "compress", "--backend", "hardware", "--rig", str(emulated_rig), "--duration", "10",
+        "--out", "hw", "--no-progress", cwd=tmp_path,
+    )  # fmt: skip
+    assert hw.returncode == 0, hw.stderr
+    run = open_run(tmp_path / "hw")
+    assert run.status == "complete" and run.metadata["backend"] == "hardware"
+    assert run.metadata["hand_driver"]["baud"] == 38400
+    assert len(run.stream("hand").t_s) == 301
+    assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
+    agreement = position_agreement(tmp_path / "sim", tmp_path / "hw")
+    assert agreement.max_relative_error < 0.02, agreement
+    assert abs(agreement.lag_s) < 0.2
+    report = json.loads(twin("compare", "sim", "hw", "--json", cwd=tmp_path).stdout)
+    assert report["mismatches"] == [] and report["max_relative_error"] < 0.02
+
+
+def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Path):
+    with make_hand_emulator("block") as emulator:
+        pty = emulator.serve_pty()
+        proc = subprocess.Popen(
+            [*TWIN, "run", "compress", "--backend", "hardware", "--hand", pty, "--duration", "30",
+             "--out", "hw", "--no-progress"],
+            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        deadline = time.monotonic() + 30
+        while emulator.firmware.controls_received < 60 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130, err
+        assert "interrupted" in err and "Traceback" not in err
+        assert emulator.firmware.commands[-1] == "T" and emulator.firmware.loop is None
+    run = open_run(tmp_path / "hw")
+    assert run.status == "interrupted"
+    samples = len(run.stream("hand").t_s)
+    assert samples >= 60  # every cycle that was answered before Ctrl-C is on disk
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--backend", "hardware"], "no BH8 hand is configured"),
+        (["--backend", "hardware", "--hand", "/dev/does-not-exist"], "cannot open the hand's port"),
+        (["--hand", "/dev/ttyUSB0"], "--hand and --rig need --backend hardware"),
+        (["--backend", "hardware", "--rig", "missing.toml"], "no such file"),
+    ],
+)
+def test_bad_hardware_input_one_line_nothing_written(args, message, tmp_path: Path):
+    result = twin("run", "compress", *args, "--out", "run", cwd=tmp_path, timeout=60)
+    assert result.returncode != 0
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+def test_bad_rig_files_are_refused_in_one_line(tmp_path: Path):
+    cases = {
+        "[hand]\nport = 5\n": "[hand].port: expected str",
+        "[hand]\nport = 'x'\nbaud = 12345\n": "baud 12345 not one of",
+        "[hnad]\nport = 'x'\n": "unknown table(s) hnad",
+        "[limits]\nfinger_counts = [100, 50]\n": "low < high",
+        "[limits]\nmax_velocity_counts_s = -1\n": "must be a finite number > 0",
+        "[hand\n": "not valid TOML",
+    }
+    for text, message in cases.items():
+        path = tmp_path / "rig.toml"
+        path.write_text(text)
+        result = twin(
+            "run", "compress", "--backend", "hardware", "--rig", str(path), "--out", "r", cwd=tmp_path
+        )
+        assert result.returncode == 2, (text, result.stderr)
+        assert message in result.stderr and "Traceback" not in result.stderr, (text, result.stderr)
+        assert not (tmp_path / "r").exists()
+
+
+def test_emulate_refuses_bad_options_in_one_line(tmp_path: Path):
+    for args, message in [
+        (["--baud", "1234"], "--baud 1234"),
+        (["--port", "serial"], "expected pty or tcp:PORT"),
+        (["--faults", "boom@3"], "--faults: bad item"),
+        (["--object", "teapot"], "teapot"),
+    ]:
+        result = twin("emulate", "hand", *args, "--duration", "1", cwd=tmp_path, timeout=60)
+        assert result.returncode == 2 and message in result.stderr, (args, result.stderr)
+        assert "Traceback" not in result.stderr
+
+
+def test_emulator_serves_tcp_and_exits_after_its_duration(tmp_path: Path):
+    t0 = time.monotonic()
+    result = twin("emulate", "hand", "--port", "tcp:0", "--object", "none", "--duration", "1", cwd=tmp_path)
+    assert result.returncode == 0
+    assert "hand: socket://127.0.0.1:" in result.stdout and "emulator stopped" in result.stdout
+    assert time.monotonic() - t0 < 30

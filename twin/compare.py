@@ -1,0 +1,115 @@
+"""Compare two recorded runs of the same scenario (e.g. sim backend vs hardware backend).
+
+Streams and units must match field by field; finger positions are compared after aligning the runs
+in time (the hardware run starts when the port is ready, not at sim time zero). Works on recordings
+only, so it runs unchanged on sim and hardware runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twin import units
+from twin.recording import open_run
+
+
+@dataclass(frozen=True)
+class FieldMismatch:
+    """A stream or field present in one run only, or with another unit or shape."""
+
+    stream: str
+    field: str
+    a: str
+    b: str
+
+
+@dataclass(frozen=True)
+class PositionAgreement:
+    """Finger positions of run b against run a after shifting b by lag_s."""
+
+    lag_s: float
+    max_error_counts: np.ndarray
+    """(3,) worst |b - a| per finger over the compared window (counts)."""
+    rms_error_counts: np.ndarray
+    """(3,) RMS error per finger (counts)."""
+    travel_counts: np.ndarray
+    """(3,) range of motion of each finger in run a (counts): the scale of the relative error."""
+
+    @property
+    def max_relative_error(self) -> float:
+        """Worst error as a fraction of the finger's travel in run a."""
+        return float(np.max(self.max_error_counts / np.maximum(self.travel_counts, 1.0)))
+
+
+def stream_mismatches(
+    run_a: Path | str, run_b: Path | str, streams: tuple[str, ...] = ("hand", "command")
+) -> list[FieldMismatch]:
+    """Fields of `streams` whose presence, unit or shape differ between two runs (empty: the same)."""
+    a, b = open_run(run_a), open_run(run_b)
+    out = []
+    for name in streams:
+        fa = a.streams[name].fields if name in a.streams else {}
+        fb = b.streams[name].fields if name in b.streams else {}
+        for field in sorted(set(fa) | set(fb)):
+            da = f"{fa[field].unit} {tuple(fa[field].shape)}" if field in fa else "missing"
+            db = f"{fb[field].unit} {tuple(fb[field].shape)}" if field in fb else "missing"
+            if da != db:
+                out.append(FieldMismatch(name, field, da, db))
+    return out
+
+
+def position_agreement(
+    run_a: Path | str,
+    run_b: Path | str,
+    *,
+    max_lag_s: float = 0.5,
+    lag_step_s: float = 0.002,
+    margin_s: float = 0.5,
+) -> PositionAgreement:
+    """Align run b's finger positions to run a's (least squares over lags), then measure the errors.
+
+    Both runs are compared on a's sample times, leaving `margin_s` at either end (where one run has
+    no data after shifting).
+    """
+    a, b = open_run(run_a).stream("hand"), open_run(run_b).stream("hand")
+    pa = a.fields["position_counts"][:, :3].astype(float)
+    pb = b.fields["position_counts"][:, :3].astype(float)
+    if len(a.t_s) < 2 or len(b.t_s) < 2:
+        raise ValueError("both runs need at least two hand samples")
+    window = (a.t_s >= a.t_s[0] + margin_s) & (a.t_s <= a.t_s[-1] - margin_s)
+    if not window.any():
+        raise ValueError("runs too short for the margin")
+    best = None
+    for lag in np.arange(-max_lag_s, max_lag_s + lag_step_s / 2, lag_step_s):
+        shifted = np.stack([np.interp(a.t_s, b.t_s - lag, pb[:, k]) for k in range(3)], axis=1)
+        err = (shifted - pa)[window]
+        rms = float(np.sqrt(np.mean(err**2)))
+        if best is None or rms < best[0]:
+            best = (rms, lag, err)
+    _, lag, err = best
+    travel = pa.max(axis=0) - pa.min(axis=0)
+    return PositionAgreement(
+        lag_s=float(lag),
+        max_error_counts=np.abs(err).max(axis=0),
+        rms_error_counts=np.sqrt(np.mean(err**2, axis=0)),
+        travel_counts=travel,
+    )
+
+
+def describe(agreement: PositionAgreement) -> str:
+    """One paragraph for the terminal."""
+    full = units.FINGER_FULL_COUNTS
+    rows = [
+        f"F{k + 1}: max {agreement.max_error_counts[k]:.0f} counts, rms {agreement.rms_error_counts[k]:.0f}, "
+        f"travel {agreement.travel_counts[k]:.0f}"
+        for k in range(3)
+    ]
+    return (
+        f"lag {agreement.lag_s * 1e3:+.0f} ms; "
+        + "; ".join(rows)
+        + f"; worst {agreement.max_relative_error:.2%} "
+        f"of travel ({agreement.max_error_counts.max() / full:.2%} of the {full}-count range)"
+    )

@@ -1,6 +1,6 @@
 """Run benchmarks and write BENCHMARKS.md with the machine they ran on.
 
-Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_discretization]
+Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_discretization,serial_cycle]
 Each section sits between markers, so --only re-runs some sections and keeps the others as they were.
 """
 
@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ("realtime", "foam_discretization")
+SECTIONS = ("realtime", "foam_discretization", "serial_cycle")
 
 
 def machine() -> str:

@@ -218,23 +218,22 @@ class SerialSession:
             self._wait_rx()
             self.send(self.fw.leave_loop())
             return True
-        if header in (b"C", b"c"):
-            if len(self._buffer) < 1 + loop.control_size:
-                return False
-            data = bytes(self._buffer[1 : 1 + loop.control_size])
-            del self._buffer[: 1 + loop.control_size]
-            self._wait_rx()
-            self.fw.apply_control(data)
-        elif header in (b"A", b"a"):
-            del self._buffer[:1]
-            self._wait_rx()
-        else:
+        if header not in (b"C", b"c", b"A", b"a"):
             del self._buffer[:1]
             self._wait_rx()
             self.fw.loop = None
             self.send(le + f"ERR {int(ErrorFlag.INVALID_REALTIME_HEADER)}".encode() + le + PROMPT)
             return True
+        size = 1 + loop.control_size if header in (b"C", b"c") else 1
+        if len(self._buffer) < size:
+            return False
+        data = bytes(self._buffer[1:size])
+        del self._buffer[:size]
+        # The sensors are sampled as the block comes in; the control takes effect once it is all in.
         reply = self.fw.feedback_block() if header in (b"C", b"A") else b"*"
+        self._wait_rx()
+        if data:
+            self.fw.apply_control(data)
         self._replies += 1
         self._send_reply(reply)
         return True

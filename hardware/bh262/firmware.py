@@ -96,7 +96,7 @@ class FirmwareError(Exception):
 class RealTimeTwin:
     """A SimBackend stepped to wall time on a background thread; `lock` guards every access."""
 
-    def __init__(self, backend: SimBackend, *, chunk_s: float = 0.004) -> None:
+    def __init__(self, backend: SimBackend, *, chunk_s: float = 0.002) -> None:
         self.backend = backend
         self.lock = threading.RLock()
         self._chunk_s = chunk_s

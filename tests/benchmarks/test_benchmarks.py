@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from benchmarks import foam_discretization, realtime
+from benchmarks import foam_discretization, realtime, serial_cycle
 
 
 def test_foam_study_forces_grow_with_depth_and_compare_to_the_reference():
@@ -31,3 +31,15 @@ def test_realtime_rows_are_positive_ratios():
     (row,) = results["rows"]
     assert row["physics_rtf"] > 0 and row["rig_rtf"] > 0 and row["full_run_rtf"] > 0
     assert "| block (default) | trilinear |" in realtime.to_markdown(results)
+
+
+def test_serial_cycle_rows_carry_the_wire_limit_beside_the_rate():
+    results = serial_cycle.run(quick=True)
+    assert len(results["rows"]) == len(serial_cycle.CONFIGS)
+    for row in results["rows"]:
+        assert row["measured_hz"] > 0
+        assert row["limit_hz"] == 38400 / (10 * row["bytes_per_cycle"])
+    assert (
+        "| hand interface (LCV+LCPG / LFV+LFS+LFAP, 1234) | pty | 26 | 147.7 |"
+        in serial_cycle.to_markdown(results)
+    )

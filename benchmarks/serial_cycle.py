@@ -1,0 +1,106 @@
+"""RealTime cycle rate of the BH8-262 driver against the emulator, beside the wire-limited rate.
+
+The emulator paces every byte at the baud rate both ways, so no client can beat the wire limit
+R / (10 * B) for B bytes per cycle; the ratio measured / limit is what the driver and the emulator
+lose to everything else (Python, the OS, the twin stepping in real time on the same machine).
+The emulator runs in a separate process (`twin emulate hand`), as it would on a lab's second machine.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+from hardware.bh262.driver import BH262, PortSettings
+from hardware.bh262.protocol import RealTimeConfig
+
+BAUD = 38400
+CONFIGS = {
+    "hand interface (LCV+LCPG / LFV+LFS+LFAP, 1234)": RealTimeConfig(
+        motors=(1, 2, 3, 4), control=("LCV", "LCPG"), feedback=("LFV", "LFS", "LFAP")
+    ),
+    "manual example (LCV+LCPG / LFS+LFAP, 123)": RealTimeConfig(
+        motors=(1, 2, 3), control=("LCV", "LCPG"), feedback=("LFS", "LFAP")
+    ),
+    "positions only (LCV / LFAP, 1234)": RealTimeConfig(
+        motors=(1, 2, 3, 4), control=("LCV",), feedback=("LFAP",)
+    ),
+}
+TRANSPORTS = ("pty", "tcp:0")
+
+
+def _start_emulator(transport: str) -> tuple[subprocess.Popen, str]:
+    cmd = [sys.executable, "-m", "twin.cli", "emulate", "hand", "--port", transport, "--object", "block"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    for line in proc.stdout:
+        if line.startswith("hand: "):
+            return proc, line.split()[1]
+    raise RuntimeError("the emulator did not start")
+
+
+def _measure(url: str, config: RealTimeConfig, cycles: int) -> float:
+    bh = BH262(PortSettings(url=url, switch_baud=BAUD, baud_switch_wait_s=0.1))
+    bh.open()
+    try:
+        bh.initialize()
+        bh.enter_realtime(config)
+        n = len(config.motors)
+        control = {f: [0] * n for f in config.control}
+        for _ in range(10):  # warm up
+            bh.cycle(control)
+        t0 = time.perf_counter()
+        for _ in range(cycles):
+            bh.cycle(control)
+        rate = cycles / (time.perf_counter() - t0)
+        bh.leave_realtime()
+        return rate
+    finally:
+        bh.close()
+
+
+def run(quick: bool = False) -> dict:
+    """Cycle rate per RealTime layout and transport at 38400 baud."""
+    cycles = 60 if quick else 1500
+    rows = []
+    for transport in TRANSPORTS[:1] if quick else TRANSPORTS:
+        proc, url = _start_emulator(transport)
+        try:
+            for name, config in CONFIGS.items():
+                rate = _measure(url, config, cycles)
+                limit = config.wire_limit_hz(BAUD)
+                rows.append(
+                    {
+                        "layout": name,
+                        "transport": transport.split(":")[0],
+                        "bytes_per_cycle": 1 + config.control_size + config.feedback_size,
+                        "limit_hz": limit,
+                        "measured_hz": rate,
+                        "ratio": rate / limit,
+                    }
+                )
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+    return {"baud": BAUD, "cycles": cycles, "rows": rows}
+
+
+def to_markdown(results: dict) -> str:
+    """The BENCHMARKS.md section."""
+    lines = [
+        "## BH8-262 RealTime cycle rate (driver vs emulator)",
+        "",
+        f"`C` cycles (control + feedback) at {results['baud']} baud, {results['cycles']} cycles each, "
+        "emulator "
+        "in its own process. The wire limit is baud / (10 x bytes per cycle), bytes both ways; "
+        "the acceptance target is >= 90 % of it.",
+        "",
+        "| RealTime layout | transport | bytes/cycle | wire limit (Hz) | measured (Hz) | ratio |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in results["rows"]:
+        lines.append(
+            f"| {r['layout']} | {r['transport']} | {r['bytes_per_cycle']} | {r['limit_hz']:.1f} | "
+            f"{r['measured_hz']:.1f} | {r['ratio']:.1%} |"
+        )
+    return "\n".join(lines) + "\n"

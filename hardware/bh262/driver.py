@@ -234,6 +234,22 @@ class BH262:
         """FGET: motor properties; one value per motor (order 1-4) or per property."""
         return self.command(f"{self._prefix(motors)}FGET {' '.join(props)}").integers()
 
+    def fget_table(self, motors: str, *props: str) -> dict[tuple[int, str], int]:
+        """FGET of several motors and properties, keyed (motor, property) per WireOptions.fget_order."""
+        prefix = self._prefix(motors)
+        numbers = {"": (1, 2, 3, 4), "G": (1, 2, 3), "S": (4,), "GS": (1, 2, 3, 4)}
+        ids = numbers.get(prefix) or tuple(sorted({4 if c == "S" else int(c) for c in prefix}))
+        values = self.fget(prefix, *props)
+        if len(values) != len(ids) * len(props):
+            raise DeviceError(
+                f"FGET {' '.join(props)}: expected {len(ids) * len(props)} values, got {values}"
+            )
+        if self.settings.options.fget_order == "property":
+            keys = [(m, p) for p in props for m in ids]
+        else:
+            keys = [(m, p) for m in ids for p in props]
+        return dict(zip(keys, values, strict=True))
+
     def fset(self, motors: str, **props: int) -> None:
         """FSET: set motor properties, e.g. fset('G', LCV=1, LFAP=1)."""
         pairs = " ".join(f"{k.upper()} {int(v)}" for k, v in props.items())
@@ -334,7 +350,8 @@ class BH262:
         if head.startswith(le[:1]):
             raw += self._read_until_prompt(self.settings.timeout_s)
             if raw.endswith(PROMPT):
-                self.realtime = None
+                if self.settings.options.err_leaves_realtime:
+                    self.realtime = None
                 parse_reply(raw, "", self.settings.options)  # raises HandCommandError on ERR n
         raise FeedbackFormatError(f"RealTime reply starts with {head[:8]!r}, not '*'")
 

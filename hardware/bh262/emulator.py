@@ -254,7 +254,8 @@ class SerialSession:
             time.sleep(float(fault.arg or 0.0))
             self.send(reply)
         elif fault.kind == "err":
-            self.fw.loop = None
+            if self.fw.options.err_leaves_realtime:
+                self.fw.loop = None
             self.send(le + f"ERR {int(fault.arg or 0)}".encode() + le + PROMPT)
         elif fault.kind == "mute":
             self._mute_until = time.monotonic() + (fault.arg if fault.arg is not None else float("inf"))

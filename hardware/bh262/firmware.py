@@ -3,12 +3,10 @@
 Written from bh262_protocol.md, not from our driver. The twin runs in real time on a thread of its
 own (`RealTimeTwin`); the firmware turns each supervisory line or RealTime block into motion of the
 simulated hand and answers from the simulated sensors. Choices where the documentation is silent:
-  - supervisory velocities MCV/MOV and RealTime velocities are encoder counts per 10 ms (the API's
-    reading, bh262_protocol.md "Velocity units" (?));
+  - the (?) items of bh262_protocol.md follow WireOptions (velocity unit, FGET order, line end,
+    temperature bytes, whether ERR leaves RealTime mode);
   - RealTime velocity control (LCV) drives each motor's set point at the commanded velocity, the same
     slewed servo the twin uses for every motion (a stalled finger keeps the force it built up);
-  - FGET with several motors and several properties answers motor by motor (order 1-4), each motor's
-    properties in the order asked ((?) in the manual);
   - LFT sends the temperature in whole degrees C (1 byte, firmware 4.4) or tenths (2 bytes, 4.3x).
 Emulators may import the simulator (architecture.md); drivers never do.
 """
@@ -35,8 +33,6 @@ from twin.interface.devices import HandReading
 from twin.sim.backend import SimBackend
 
 DEFAULT_OPTIONS = WireOptions()
-VELOCITY_UNIT_S = 0.010
-"""Supervisory and RealTime velocities are counts per 10 ms (see the module docstring)."""
 BANNER = "BarrettHand Firmware Version 4.4.3 (barrett-twin emulator)"
 SUPPORTED_BAUD = (600, 1200, 2400, 4800, 9600, 19200, 38400)
 MOTORS = (1, 2, 3, 4)
@@ -296,6 +292,8 @@ class Firmware:
                 if a not in _FINGER_PROPS:
                     raise FirmwareError(ErrorFlag.UNKNOWN_PARAMETER)
             reading = self._read()
+            if self.options.fget_order == "property":
+                return [self._read_prop(m, a, reading) for a in args for m in motors]
             return [self._read_prop(m, a, reading) for m in motors for a in args]
         if verb == "FSET":
             pairs = self._pairs(args)
@@ -366,7 +364,7 @@ class Firmware:
             for m in motors:
                 limit = units.SPREAD_FULL_COUNTS if m == SPREAD else units.FINGER_MAX_COUNTS
                 goal[m - 1] = min(max(targets[m], 0), limit)
-                speed[m - 1] = self.props[m][velocity_prop] / VELOCITY_UNIT_S
+                speed[m - 1] = self.props[m][velocity_prop] / self.options.velocity_unit_s
             hand.drive(goal, np.where(speed > 0, speed, 1.0))
         deadline = time.monotonic() + self.motion_timeout_s
         last = None
@@ -417,9 +415,9 @@ class Firmware:
                     if position is None:
                         position = hand.read().position_counts
                     goal[m - 1] = position[m - 1] + values["LCT"]
-                    speed[m - 1] = props["MCV"] / VELOCITY_UNIT_S
+                    speed[m - 1] = props["MCV"] / self.options.velocity_unit_s
                     continue
-                v = values.get("LCV", 0) * props["LCVC"] / VELOCITY_UNIT_S if gain > 0 else 0.0
+                v = values.get("LCV", 0) * props["LCVC"] / self.options.velocity_unit_s if gain > 0 else 0.0
                 limit = units.SPREAD_FULL_COUNTS if m == SPREAD else units.FINGER_MAX_COUNTS
                 goal[m - 1] = limit if v > 0 else (0 if v < 0 else goal[m - 1])
                 speed[m - 1] = abs(v)

@@ -33,8 +33,6 @@ MAX_COUNTS = np.array([units.FINGER_MAX_COUNTS] * 3 + [units.SPREAD_FULL_COUNTS]
 DEFAULT_REALTIME = RealTimeConfig(
     motors=(1, 2, 3, 4), control=("LCV", "LCPG"), feedback=("LFV", "LFS", "LFAP")
 )
-VELOCITY_UNIT_S = 0.010
-"""RealTime velocities are counts per 10 ms (BHand API; bh262_protocol.md (?)), as the hand config."""
 
 
 class WatchdogError(DeviceError):
@@ -65,8 +63,12 @@ class BH8SerialHand(Hand):
             raise ConfigError(f"the hand interface needs RealTime fields {', '.join(sorted(missing))}")
         if watchdog_cycles < 1:
             raise ConfigError("watchdog_cycles must be >= 1")
-        if abs(config.velocity_sample_time_s - VELOCITY_UNIT_S) > 1e-12:
-            raise ConfigError("the BH8-262 reports velocity per 10 ms: set velocity_sample_time_s = 0.01")
+        self.velocity_unit_s = port.options.velocity_unit_s
+        if abs(config.velocity_sample_time_s - self.velocity_unit_s) > 1e-12:
+            raise ConfigError(
+                f"the hand config reads velocity per {config.velocity_sample_time_s:g} s but the wire option "
+                f"says {self.velocity_unit_s:g} s: make them agree"
+            )
         self.config = config
         self.port = port
         self.clock = clock
@@ -95,7 +97,7 @@ class BH8SerialHand(Hand):
     @property
     def max_wire_velocity_counts_s(self) -> float:
         """Fastest velocity an int8 LCV can carry with the configured LCVC."""
-        return 127 * self.lcvc / VELOCITY_UNIT_S
+        return 127 * self.lcvc / self.velocity_unit_s
 
     def wire_time_per_period_s(self, baud: int) -> float:
         """Bytes one period puts on the wire: an A cycle and a c cycle (10 bits per byte)."""
@@ -198,9 +200,9 @@ class BH8SerialHand(Hand):
         wanted = self.position_gain * (self._target - self._setpoint) / self.spec.period_s
         limit = min(self._max_velocity, self.max_wire_velocity_counts_s)
         # Truncated toward zero: the hand never moves faster than the command allows.
-        lcv = np.trunc(np.clip(wanted, -limit, limit) * VELOCITY_UNIT_S / self.lcvc).astype(int)
+        lcv = np.trunc(np.clip(wanted, -limit, limit) * self.velocity_unit_s / self.lcvc).astype(int)
         lcv = np.clip(lcv, -127, 127)
-        self._velocity = lcv * self.lcvc / VELOCITY_UNIT_S
+        self._velocity = lcv * self.lcvc / self.velocity_unit_s
         gain = [100] * 4
         return {"LCV": lcv.tolist(), "LCPG": gain}
 

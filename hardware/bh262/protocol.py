@@ -76,12 +76,24 @@ class WireOptions:
     """Reply line separator: LF CR, as the clients expect; the manual writes "CRLF"."""
     temperature_bytes: int = 1
     """RealTime LFT temperature: 1 unsigned byte (firmware 4.4) or 2 signed big-endian (4.3x)."""
+    velocity_unit_s: float = 0.010
+    """RealTime and MCV/MOV velocities in counts per 10 ms, as Barrett's API reads them; one client
+    assumes a x16 scale per 409.6 us sample instead (409.6 us / 16 = 25.6 us)."""
+    fget_order: str = "motor"
+    """FGET with several motors and several properties: "motor" (each motor's properties in turn) or
+    "property" (each property for every motor); the manual does not say."""
+    err_leaves_realtime: bool = True
+    """An ERR during RealTime returns the hand to Supervisory mode (the clients assume so)."""
 
     def __post_init__(self) -> None:
         if self.line_end not in (b"\n\r", b"\r\n"):
             raise ValueError("line_end must be LF CR or CR LF")
         if self.temperature_bytes not in (1, 2):
             raise ValueError("temperature_bytes must be 1 (firmware 4.4) or 2 (4.3x)")
+        if not any(abs(self.velocity_unit_s - u) < 1e-12 for u in (0.010, 409.6e-6 / 16)):
+            raise ValueError("velocity_unit_s must be 0.010 (API) or 25.6e-6 (x16 at 409.6 us)")
+        if self.fget_order not in ("motor", "property"):
+            raise ValueError('fget_order must be "motor" or "property"')
 
 
 def format_command(command: str) -> bytes:

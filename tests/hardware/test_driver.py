@@ -188,3 +188,28 @@ def test_fuzz_realtime_feedback_only_declared_errors(raw):
     except HandTimeoutError:  # an error reply cut short by the prompt never coming
         return
     assert raw[:1] == b"*" and all(len(v) == 4 for v in fb.fields.values())
+
+
+@pytest.mark.parametrize("order", ["motor", "property"])
+def test_fget_order_is_an_option_both_sides_agree_on(order):
+    from hardware.bh262.protocol import WireOptions
+
+    options = WireOptions(fget_order=order)
+    with make_hand_emulator(None, options=options) as emulator:
+        bh = BH262(PortSettings(url=emulator.serve_tcp(0), switch_baud=None, options=options))
+        bh.open()
+        bh.fset("2", MCV=40)
+        raw = bh.fget("12", "MCV", "MOV")
+        assert raw == ([100, 100, 40, 100] if order == "motor" else [100, 40, 100, 100])
+        table = bh.fget_table("12", "MCV", "MOV")
+        assert table == {(1, "MCV"): 100, (1, "MOV"): 100, (2, "MCV"): 40, (2, "MOV"): 100}
+        bh.close()
+
+
+def test_wire_options_refuse_unknown_choices():
+    from hardware.bh262.protocol import WireOptions
+
+    for bad in ({"fget_order": "diagonal"}, {"velocity_unit_s": 0.5}, {"line_end": b"\n"}):
+        with pytest.raises(ValueError):
+            WireOptions(**bad)
+    assert WireOptions(velocity_unit_s=409.6e-6 / 16).velocity_unit_s == pytest.approx(25.6e-6)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hardware.backend import WallClock
 from hardware.bh262.driver import PortSettings
 from hardware.bh262.emulator import make_hand_emulator
-from hardware.bh262.hand import VELOCITY_UNIT_S, BH8SerialHand
+from hardware.bh262.hand import BH8SerialHand
 from twin.interface.devices import HandCommand
 from twin.interface.hand_spec import HandConfig
 from twin.safety import SafetyLayer, SafetyLimits, UnsafeCommandError
@@ -57,7 +57,7 @@ def test_commands_outside_the_limits_never_reach_the_wire(wired, position, max_v
     hand.command(sent)
     assert firmware.controls_received == before + 1
     for motor, values in firmware.last_control.items():  # what the hand received, motor by motor
-        speed = abs(values["LCV"]) * firmware.props[motor]["LCVC"] / VELOCITY_UNIT_S
+        speed = abs(values["LCV"]) * firmware.props[motor]["LCVC"] / firmware.options.velocity_unit_s
         assert speed <= max_velocity
     setpoint = hand._setpoint
     assert np.all(setpoint >= 0) and np.all(setpoint[:3] <= 17_800)

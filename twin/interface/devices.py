@@ -19,6 +19,7 @@ from twin.interface.specs import DeviceSpec
 
 if TYPE_CHECKING:
     from twin.interface.hand_spec import HandConfig
+    from twin.interface.tactile_spec import TactileConfig
 
 MOTOR_LABELS = ("F1", "F2", "F3", "S")
 FINGER_LABELS = ("F1", "F2", "F3")
@@ -116,20 +117,40 @@ class Hand(Device):
         """Terminate motor control (the protocol's T): motors stop driving."""
 
 
+N_TAXELS = 162
+"""7 pads: 3 fingertips x 22, 3 inner links x 24, the palm 24 (paper §5, hardware_facts §4)."""
+TAXEL_COUNT_MAX = 32767
+"""Largest raw reading: 15-bit counts (hardware_facts §4)."""
+
+
 @dataclass(frozen=True)
 class TactileReading:
-    """One scan of the 162 taxels in raw 15-bit counts."""
+    """One scan of the 162 taxels in raw 15-bit counts, in taxel-id order (twin.tactile.layout)."""
 
     t_s: float
+    """When the scan was taken, on the run clock."""
     counts: NDArray[np.int32]
+    """(162,) raw counts 0-32767."""
+    sequence: int = -1
+    """The device's frame number (-1 where the device has none, as in the sim)."""
+    dropped_frames: int = 0
+    """Frames lost on the way since the device was connected (sequence gaps, bad frames)."""
+
+    def __post_init__(self) -> None:
+        counts = np.asarray(self.counts)
+        if counts.shape != (N_TAXELS,):
+            raise ValueError(f"a tactile scan has {N_TAXELS} counts, got shape {counts.shape}")
 
 
 class TactileArray(Device):
     """The PPS tactile pads (7 pads, 162 taxels)."""
 
+    config: TactileConfig
+    """Declared rate, latency and noise (same type for every backend)."""
+
     @abstractmethod
     def read(self) -> TactileReading:
-        """Scan all taxels now."""
+        """The latest scan of all taxels (sim: scanned now; hardware: the newest frame received)."""
 
 
 @dataclass(frozen=True)

@@ -9,18 +9,22 @@ from __future__ import annotations
 
 import heapq
 import math
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
 from twin import units
 from twin.interface.backend import Backend
-from twin.interface.devices import FINGER_LABELS, HandCommand, HandReading
+from twin.interface.devices import FINGER_LABELS, N_TAXELS, HandCommand, HandReading, TactileReading
 from twin.interface.errors import DeviceError
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
+from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
+from twin.tactile.layout import LAYOUT
 
 
 class Controller(Protocol):
@@ -88,6 +92,26 @@ def truth_stream_spec(rate_hz: float) -> StreamSpec:
     )
 
 
+def tactile_stream_spec(rate_hz: float) -> StreamSpec:
+    """The recorded tactile scans: raw counts beside eq. 5 pressures and eq. 6 pad forces."""
+    pads = ", ".join(LAYOUT.pad_names)
+    return StreamSpec(
+        name="tactile",
+        rate_hz=rate_hz,
+        description=f"PPS pads, 162 taxels in layout id order (twin.tactile.layout); pads: {pads}",
+        fields={
+            "counts": FieldSpec(unit="counts", shape=(N_TAXELS,), dtype="int32", kind="raw"),
+            "sequence": FieldSpec(unit="1", dtype="int64", kind="status", description="device frame number"),
+            "dropped_frames": FieldSpec(unit="1", dtype="int64", kind="status"),
+            "pressure_kpa": FieldSpec(unit="kPa", shape=(N_TAXELS,), kind="physical", description="eq. 5"),
+            "pad_force_n": FieldSpec(
+                unit="N", shape=(len(LAYOUT.pads),), kind="physical", description="eq. 6"
+            ),
+            "active_taxels": FieldSpec(unit="1", shape=(len(LAYOUT.pads),), dtype="int32", kind="physical"),
+        },
+    )
+
+
 @dataclass(order=True)
 class _Event:
     t_s: float
@@ -117,8 +141,13 @@ class Rig:
         scene_rate_hz: float = 30.0,
         phases: tuple[str, ...] = ("idle",),
         safety: SafetyLayer | None = None,
+        tactile_calibration: TaxelCalibration | None = None,
     ) -> None:
         self.backend = backend
+        if backend.tactile is not None and tactile_calibration is None:
+            with tempfile.TemporaryDirectory() as tmp:  # the backend's files, read as any run reads them
+                tactile_calibration = load_calibration(backend.write_calibration(Path(tmp)))
+        self.tactile_calibration = tactile_calibration
         self.safety = safety or SafetyLayer()
         self.writer = writer
         self.viewer = viewer
@@ -136,6 +165,8 @@ class Rig:
             writer.add_stream(command_stream_spec(hand_spec.rate_hz))
             if backend.ground_truth() is not None:
                 writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
+            if backend.tactile is not None:
+                writer.add_stream(tactile_stream_spec(backend.tactile.spec.rate_hz))
 
     def _push(self, t_s: float, kind: str, payload: object = None) -> None:
         self._order += 1
@@ -156,6 +187,12 @@ class Rig:
         n_hand = math.floor(duration_s * hand.spec.rate_hz + 1e-9)
         for k in range(n_hand + 1):
             self._push(k * period, "sample_hand")
+        tactile = self.backend.tactile
+        if tactile is not None:
+            n_tactile = math.floor(duration_s * tactile.spec.rate_hz + 1e-9)
+            tactile_latency = tactile.spec.latency_s if self.backend.is_simulated else 0.0
+            for k in range(n_tactile + 1):
+                self._push(k * tactile.spec.period_s, "sample_tactile")
         if self.scene_logger is not None:
             n_scene = math.floor(duration_s * self.scene_rate_hz + 1e-9)
             for k in range(n_scene + 1):
@@ -174,6 +211,11 @@ class Rig:
                     self._deliver(reading, truth, controller)
                     if progress is not None:
                         progress(event.t_s)
+                elif event.kind == "sample_tactile":
+                    scan = tactile.read()
+                    self._push(scan.t_s + tactile_latency, "deliver_tactile", scan)
+                elif event.kind == "deliver_tactile":
+                    self._deliver_tactile(event.payload)
                 elif event.kind == "scene":
                     self.scene_logger(event.t_s)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
@@ -238,6 +280,25 @@ class Rig:
                     "force_kg": FINGER_LABELS,
                 },
             )
+
+    def _deliver_tactile(self, scan: TactileReading) -> None:
+        pressure = self.tactile_calibration.to_kpa(scan.counts)
+        forces = pad_forces_n(pressure)
+        self._record(
+            "tactile",
+            scan.t_s,
+            {
+                "counts": scan.counts,
+                "sequence": scan.sequence,
+                "dropped_frames": scan.dropped_frames,
+                "pressure_kpa": pressure,
+                "pad_force_n": forces,
+                "active_taxels": active_counts(pressure),
+            },
+        )
+        log_tactile = getattr(self.viewer, "log_tactile", None)
+        if log_tactile is not None:
+            log_tactile(scan.t_s, pressure, forces)
 
     def _record(self, stream: str, t_s: float, values: dict) -> None:
         self.samples[stream] = self.samples.get(stream, 0) + 1

@@ -22,6 +22,7 @@ from twin.interface.errors import ConfigError
 from twin.recording import RunWriter
 from twin.rig import Rig, RigResult
 from twin.safety import SafetyLayer
+from twin.tactile.calibration import load_calibration
 
 RRD_NAME = "run.rrd"
 
@@ -104,10 +105,23 @@ def run_experiment(
         }
         rrd_path = run_dir / RRD_NAME
         with RunWriter(run_dir, metadata) as writer:
+            files = backend.write_calibration(run_dir / "calibration")
+            writer.update_metadata(
+                calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
+            )
+            tactile_calibration = load_calibration(files) if backend.tactile is not None else None
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
             try:
                 scene_logger = _scene_logger(backend, recording)
-                rig = Rig(backend, writer, recording, scene_logger, phases=phases, safety=safety)
+                rig = Rig(
+                    backend,
+                    writer,
+                    recording,
+                    scene_logger,
+                    phases=phases,
+                    safety=safety,
+                    tactile_calibration=tactile_calibration,
+                )
                 result = rig.run(controller, duration_s, progress)
                 writer.update_metadata(final_phase=result.final_phase)
             finally:  # what went wrong is kept even when the run failed

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -80,6 +81,14 @@ class Backend(ABC):
     def scene(self) -> tuple[Any, Any] | None:
         """(MjModel, MjData) to draw in 3-D, where the backend has a MuJoCo world; None otherwise."""
         return None
+
+    def write_calibration(self, directory: Path) -> dict[str, Path]:
+        """Put the calibration files in force into `directory` (a run's record of them); name -> path.
+
+        The sim writes the files of its simulated sensors; hardware copies the rig's files. The rig
+        loads the conversions from these copies, so a run carries the calibration it was converted with.
+        """
+        return {}
 
     def diagnostics(self) -> dict[str, Any]:
         """Problems the backend noticed during the run (e.g. MuJoCo warnings); empty when clean."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -10,9 +11,11 @@ import numpy as np
 
 from twin.interface.backend import Backend, Clock
 from twin.interface.hand_spec import HandConfig
+from twin.interface.tactile_spec import TactileConfig
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
+from twin.sim.tactile import SimTactile, SimTactileSensor
 from twin.sim.world import SimWorld
 
 FINGERS = (1, 2, 3)
@@ -38,12 +41,30 @@ class SimBackend(Backend):
 
     name = "sim"
 
-    def __init__(self, foam: FoamParams | None, hand_config: HandConfig | None = None, seed: int = 0) -> None:
+    def __init__(
+        self,
+        foam: FoamParams | None,
+        hand_config: HandConfig | None = None,
+        seed: int = 0,
+        *,
+        tactile_config: TactileConfig | None = None,
+        tactile: bool = True,
+    ) -> None:
         self.foam = foam
         self.seed = seed
         self.world = SimWorld(build_model(foam))
         rng = np.random.default_rng(seed)
         self.hand = SimHand(self.world, hand_config or HandConfig(), rng)
+        self.tactile = (
+            SimTactile(
+                self.world,
+                tactile_config or TactileConfig(),
+                SimTactileSensor.generate(seed),
+                np.random.default_rng([seed, 1]),  # its own noise stream: hand readings stay as they were
+            )
+            if tactile
+            else None
+        )
         self._clock = SimClock(self.world)
         m = self.world.model
         self._inner = [m.joint(f"f{k}_inner").qposadr[0] for k in FINGERS]
@@ -87,6 +108,12 @@ class SimBackend(Backend):
                     total[k] += c.frame.reshape(3, 3).T @ wrench[:3]
         return np.linalg.norm(total, axis=1)
 
+    def write_calibration(self, directory: Path) -> dict[str, Path]:
+        """The simulated pads' calibration points and fitted look-up table (as a manufacturer's files)."""
+        if self.tactile is None:
+            return {}
+        return self.tactile.sensor.write_files(directory)
+
     def scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The MuJoCo model and data, for 3-D logging."""
         return self.world.model, self.world.data
@@ -107,4 +134,5 @@ class SimBackend(Backend):
             "integrator": mujoco.mjtIntegrator(m.opt.integrator).name,
             "object": self.foam.to_json() if self.foam else None,
             "hand_config": vars(self.hand.config),
+            "tactile_config": vars(self.tactile.config) if self.tactile else None,
         }

@@ -16,8 +16,9 @@ from twin.sim.backend import SimBackend
 from twin.sim.foam import DEFAULT_OBJECT, LIBRARY
 
 
-def _physics_only(foam, duration_s: float) -> tuple[float, dict]:
-    """Replay the compress run's contact state: run the rig once, then time bare world steps."""
+def _physics_only(foam, duration_s: float) -> tuple[float, dict, float]:
+    """Replay the compress run's contact state: run the rig once, then time bare world steps and
+    full 162-taxel scans in that grasped state."""
     backend = SimBackend(foam)
     backend.connect()
     Rig(backend, phases=PHASES).run(CompressController(), duration_s)
@@ -27,11 +28,16 @@ def _physics_only(foam, duration_s: float) -> tuple[float, dict]:
     for _ in range(n):
         world.step()
     wall = time.perf_counter() - t0
-    return n * world.timestep_s / wall, world.warnings()
+    scans = 200
+    t0 = time.perf_counter()
+    for _ in range(scans):
+        backend.tactile.read()
+    scan_ms = (time.perf_counter() - t0) / scans * 1e3
+    return n * world.timestep_s / wall, world.warnings(), scan_ms
 
 
-def _rig(foam, duration_s: float) -> float:
-    backend = SimBackend(foam)
+def _rig(foam, duration_s: float, tactile: bool = True) -> float:
+    backend = SimBackend(foam, tactile=tactile)
     backend.connect()
     t0 = time.perf_counter()
     Rig(backend, phases=PHASES).run(CompressController(), duration_s)
@@ -67,13 +73,15 @@ def run(quick: bool = False) -> dict:
         cases = cases[:1]
     for name, dof in cases:
         foam = LIBRARY[name].with_overrides(dof=dof)
-        physics, warnings = _physics_only(foam, duration)
+        physics, warnings, scan_ms = _physics_only(foam, duration)
         row = {
             "object": name,
             "dof": dof,
             "resolution": foam.resolution,
             "physics_rtf": physics,
+            "rig_hand_rtf": _rig(foam, duration, tactile=False),
             "rig_rtf": _rig(foam, duration),
+            "scan_ms": scan_ms,
             "warnings": warnings,
         }
         if dof == base.dof:
@@ -85,15 +93,17 @@ def run(quick: bool = False) -> dict:
 def to_markdown(results: dict) -> str:
     """The BENCHMARKS.md section."""
     lines = [
-        "## Real-time factor (simulated s per wall s; target >= 3x for the rig with hand sensors)",
+        "## Real-time factor (simulated s per wall s; target >= 3x for the rig with hand + tactile sensors)",
         "",
         f"Compress procedure, {results['duration_s']:g} s of sim time per row, one process. "
         "*physics*: bare world steps in the grasped state; *rig*: + hand sampling at 30 Hz, latency, "
-        "controller; *full run*: + Arrow recording and the Rerun .rrd (3-D scene at 30 Hz), process start-up "
-        "(imports) excluded.",
+        "controller (+ the 162-taxel scan at 30 Hz); *full run*: + Arrow recording and the Rerun .rrd "
+        "(3-D scene, pads and contacts at 30 Hz), process start-up (imports) excluded. *scan*: one full "
+        "tactile scan in the grasped state (target <= 1 ms).",
         "",
-        "| object | dof | resolution | physics | rig + hand sensors | full recorded run | MuJoCo warnings |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| object | dof | resolution | physics | rig + hand | rig + hand + tactile | tactile scan | "
+        "full recorded run | MuJoCo warnings |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for r in results["rows"]:
         full = f"{r['full_run_rtf']:.2f}x" if "full_run_rtf" in r else "-"
@@ -105,7 +115,7 @@ def to_markdown(results: dict) -> str:
         )
         lines.append(
             f"| {r['object']}{default} | {r['dof']} | {r['resolution']} | {r['physics_rtf']:.2f}x "
-            f"| {r['rig_rtf']:.2f}x | {full} | {warn} |"
+            f"| {r['rig_hand_rtf']:.2f}x | {r['rig_rtf']:.2f}x | {r['scan_ms']:.2f} ms | {full} | {warn} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -140,7 +140,12 @@ def _scene_logger(backend: Backend, recording: Any) -> Callable[[float], None] |
     model, data = scene
     recording.log_model(model)
 
+    tactile = backend.tactile
+
     def log(t_s: float) -> None:
         recording.log_scene(t_s, data)
+        points = getattr(tactile, "contact_points_m", None)
+        if points is not None:  # the sim's pads know where they were pressed
+            recording.log_contacts(t_s, points, tactile.contact_forces_n)
 
     return log

@@ -28,6 +28,11 @@ PLOT_GROUPS = ("position_counts", "velocity_counts", "torque_nm", "force_kg")
 PLOT_STREAMS = ("hand",)
 FOAM_RGB = (240, 190, 100)  # pale yellow-orange
 SENSORS_ENTITY = "notes/sensors"
+TACTILE_ENTITY = "tactile"
+CONTACTS_ENTITY = "world/contacts"
+PRESSURE_FULL_SCALE_KPA = 150.0
+"""Top of the heatmap colour scale: about 2 kg on four 6 mm taxels."""
+CONTACT_ARROW_M_PER_N = 0.004
 LOG_ENTITY = "log"
 # mjtGeom values (stable across MuJoCo 3.x): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4,
 # cylinder 5, box 6, mesh 7, sdf 8. Height fields and SDFs are not drawn.
@@ -52,7 +57,9 @@ def default_blueprint(
         for group in plot_groups
     ]
     sensors = rrb.Tabs(
-        rrb.TextDocumentView(name="Tactile & cameras", origin=f"/{SENSORS_ENTITY}"),
+        rrb.Spatial2DView(name="tactile pads (kPa)", origin=f"/{TACTILE_ENTITY}"),
+        rrb.TimeSeriesView(name="pad forces, eq. 6 (N)", origin="/plots/tactile"),
+        rrb.TextDocumentView(name="cameras", origin=f"/{SENSORS_ENTITY}"),
         rrb.TextLogView(name="log", origin=f"/{LOG_ENTITY}"),
         name="Tactile & cameras",
     )
@@ -86,9 +93,7 @@ class RunRecording:
         self.rec.save(self.rrd_path, default_blueprint=default_blueprint(streams=self._plot_streams))
         self.rec.log(
             SENSORS_ENTITY,
-            rr.TextDocument(
-                "Tactile heatmaps and camera images appear here once those devices are on the rig."
-            ),
+            rr.TextDocument("Camera images appear here once the stereo pair is on the rig."),
             static=True,
         )
         self._series_named: set[str] = set()
@@ -96,6 +101,8 @@ class RunRecording:
         self._bodies: list[tuple[int, str]] = []
         self._welded: list[tuple[int, str]] = []
         self._closed = False
+        self._tactile_static: tuple[np.ndarray, np.ndarray] | None = None
+        self._body_paths: dict[str, str] = {}
 
     def _open(self, t_s: float | None) -> None:
         if self._closed:
@@ -131,6 +138,7 @@ class RunRecording:
         for b in sorted(drawn - {0}):
             fixed = model.body_weldid[b] == 0
             (self._welded if fixed else self._bodies).append((b, f"world/bodies/{bodies[b]}"))
+            self._body_paths[bodies[b]] = f"world/bodies/{bodies[b]}"
         for f, name in enumerate(_unique([_name(model, "flex", f) for f in range(model.nflex)])):
             self._flex.append(
                 (
@@ -164,6 +172,45 @@ class RunRecording:
                     albedo_factor=[*FOAM_RGB, 255],
                 ),
             )
+
+    def log_tactile(self, t_s: float, pressure_kpa: ArrayLike, pad_force_n: ArrayLike) -> None:
+        """Pads as heatmaps in their layout (2-D), taxels coloured on the hand (3-D), eq. 6 forces."""
+        from twin.tactile.layout import LAYOUT
+
+        self._open(t_s)
+        pressure = np.asarray(pressure_kpa, dtype=float)
+        colors = _heat(pressure / PRESSURE_FULL_SCALE_KPA)
+        if not self._tactile_static:
+            centers, half = _pad_canvas()
+            self.rec.log(
+                f"{TACTILE_ENTITY}/names",
+                rr.Points2D(_pad_label_positions(), labels=list(LAYOUT.pad_names), radii=0.1),
+                static=True,
+            )
+            self._tactile_static = (centers, half)
+        centers, half = self._tactile_static
+        self.rec.log(f"{TACTILE_ENTITY}/taxels", rr.Boxes2D(centers=centers, half_sizes=half, colors=colors))
+        for pad_index, pad in enumerate(LAYOUT.pads):
+            body_path = self._body_paths.get(pad.body)
+            if body_path is None:
+                continue
+            ids = np.flatnonzero(LAYOUT.pad_index == pad_index)
+            self.rec.log(
+                f"{body_path}/taxels_{pad.name}",
+                rr.Points3D(LAYOUT.position_m[ids], colors=colors[ids], radii=pad.pitch_m * 0.4),
+            )
+        self.log_scalars(
+            "tactile", t_s, {"pad_force_n": pad_force_n}, labels={"pad_force_n": LAYOUT.pad_names}
+        )
+
+    def log_contacts(self, t_s: float, points_m: ArrayLike, forces_n: ArrayLike) -> None:
+        """Contact points and their normal forces as arrows in the 3-D scene (pointing into the pad)."""
+        self._open(t_s)
+        points = np.asarray(points_m, dtype=float).reshape(-1, 3)
+        vectors = np.asarray(forces_n, dtype=float).reshape(-1, 3) * CONTACT_ARROW_M_PER_N
+        self.rec.log(
+            CONTACTS_ENTITY, rr.Arrows3D(origins=points - vectors, vectors=vectors, colors=[(220, 40, 40)])
+        )
 
     def log_scalars(
         self,
@@ -210,6 +257,46 @@ class RunRecording:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+_HEAT_STOPS = np.array([[40, 30, 90], [40, 110, 180], [60, 180, 120], [240, 210, 60], [250, 250, 230]], float)
+
+
+def _heat(x: ArrayLike) -> np.ndarray:
+    """Colours of values in [0, 1] on a dark-blue -> yellow scale (out-of-range values clipped)."""
+    x = np.clip(np.nan_to_num(np.asarray(x, dtype=float)), 0.0, 1.0) * (len(_HEAT_STOPS) - 1)
+    lo = np.minimum(x.astype(int), len(_HEAT_STOPS) - 2)
+    frac = (x - lo)[:, None]
+    return ((1 - frac) * _HEAT_STOPS[lo] + frac * _HEAT_STOPS[lo + 1]).astype(np.uint8)
+
+
+def _pad_canvas() -> tuple[np.ndarray, np.ndarray]:
+    """2-D centres and half sizes (mm) of the taxels, pads in their real sizes: each finger's
+    fingertip above its inner link, the three fingers side by side, the palm below."""
+    from twin.tactile.layout import LAYOUT
+
+    centers = np.zeros((len(LAYOUT.area_m2), 2))
+    half = np.zeros((len(LAYOUT.area_m2), 2))
+    for taxel, (row, col) in enumerate(LAYOUT.row_col):
+        pad = LAYOUT.pads[LAYOUT.pad_index[taxel]]
+        mm = pad.pitch_m * 1e3
+        if pad.name == "palm":
+            x0, y0 = 15.0, 10.0
+            centers[taxel] = (x0 + col * mm, y0 + row * mm)
+        else:
+            finger = int(pad.name[1]) - 1
+            y0 = -110.0 if pad.name.endswith("_tip") else -52.0
+            centers[taxel] = (finger * 30.0 + col * mm, y0 + (pad.rows - 1 - row) * mm)
+        half[taxel] = 0.45 * mm
+    return centers, half
+
+
+def _pad_label_positions() -> np.ndarray:
+    """Where each pad's name sits on the 2-D canvas (above its first cell)."""
+    from twin.tactile.layout import LAYOUT
+
+    centers, _ = _pad_canvas()
+    return np.array([centers[LAYOUT.pad_index == k].min(axis=0) - (0, 6) for k in range(len(LAYOUT.pads))])
 
 
 def _name(model: mujoco.MjModel, kind: str, i: int) -> str:

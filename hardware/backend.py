@@ -16,6 +16,7 @@ from twin.interface.devices import Hand, HandCommand, HandReading
 from twin.interface.errors import DeviceError, DeviceNotConfiguredError
 from twin.interface.hand_spec import HandConfig, hand_device_spec
 from twin.interface.specs import DeviceSpec
+from twin.safety import SafetyLimits
 
 
 class WallClock(Clock):
@@ -101,6 +102,10 @@ class HardwareBackend(Backend):
     def clock(self) -> Clock:
         """Wall clock."""
         return self._clock
+
+    def safety_limits(self) -> SafetyLimits:
+        """The limits of the rig file (the datasheet's when it names none)."""
+        return self.config.limits
 
     def metadata(self) -> dict[str, Any]:
         """Ports and settings of this rig."""

@@ -134,7 +134,6 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
 
     foam = _foam_from_args(args)
     run_dir = args.out or default_run_dir("compress", foam.name)
-    safety = None
     if args.backend == "sim":
         if args.hand or args.rig:
             raise ConfigError("--hand and --rig need --backend hardware")
@@ -144,13 +143,11 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
     else:
         from hardware.backend import HardwareBackend
         from hardware.rig_config import RigConfig, load_rig
-        from twin.safety import SafetyLayer
 
         rig = load_rig(args.rig) if args.rig else RigConfig()
         if args.hand:
             rig = rig.with_hand_port(args.hand)
         backend = HardwareBackend(rig)
-        safety = SafetyLayer(rig.limits)
     profile = CompressProfile()
     experiment = {"name": "compress", "object": foam.name, "profile": profile.to_json()}
     outcome = _with_progress(
@@ -164,7 +161,6 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             run_dir=run_dir,
             experiment=experiment,
             progress=progress,
-            safety=safety,
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")

@@ -92,6 +92,8 @@ def run_experiment(
     if not duration_s > 0:
         raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
     check_output_dir(run_dir)
+    if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
+        safety = SafetyLayer(backend.safety_limits())
     backend.connect()
     try:
         metadata = {

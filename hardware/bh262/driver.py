@@ -106,7 +106,23 @@ class BH262:
             )
         except (serial.SerialException, ValueError) as exc:
             raise DeviceError(f"cannot open the hand's port {self.settings.url}: {exc}") from None
-        self.resync()
+        try:
+            self.resync()
+        except HandTimeoutError:
+            # A session that ended without restoring the rate (a crash, a pulled cable) leaves the hand
+            # at the fast rate until it is power-cycled: look for it there before giving up.
+            fast = self.settings.switch_baud
+            if not fast or fast == self.baud:
+                raise
+            self._require().baudrate = fast
+            self.baud = fast
+            try:
+                self.resync()
+            except HandTimeoutError:
+                raise HandTimeoutError(
+                    f"no prompt from the hand on {self.settings.url} at {self.settings.baud} or {fast} baud: "
+                    "is it powered on and in Supervisory mode?"
+                ) from None
         if self.settings.switch_baud and self.settings.switch_baud != self.baud:
             self.set_baud(self.settings.switch_baud)
 

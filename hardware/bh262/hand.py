@@ -127,8 +127,10 @@ class BH8SerialHand(Hand):
     def _disconnect(self) -> None:
         try:
             self.idle()
+            if self.bh.baud != self.port.baud:  # leave the hand at the rate the next session expects
+                self.bh.set_baud(self.port.baud)
         except DeviceError as exc:
-            log.warning("could not idle the hand on disconnect: %s", exc)
+            log.warning("could not idle the hand or restore its baud rate on disconnect: %s", exc)
         finally:
             self.bh.close()
 

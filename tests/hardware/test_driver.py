@@ -213,3 +213,25 @@ def test_wire_options_refuse_unknown_choices():
         with pytest.raises(ValueError):
             WireOptions(**bad)
     assert WireOptions(velocity_unit_s=409.6e-6 / 16).velocity_unit_s == pytest.approx(25.6e-6)
+
+
+def test_a_session_leaves_the_hand_at_the_rate_the_next_one_expects():
+    from hardware.backend import WallClock
+    from hardware.bh262.hand import BH8SerialHand
+    from twin.interface.hand_spec import HandConfig
+
+    with make_hand_emulator(None) as emulator:
+        port = PortSettings(url=emulator.serve_tcp(0), switch_baud=38400, baud_switch_wait_s=0.05)
+        hand = BH8SerialHand(HandConfig(), port, WallClock())
+        hand.connect()
+        assert emulator.firmware.baud == 38400
+        hand.disconnect()
+        assert emulator.firmware.baud == 9600 and emulator.firmware.commands[-3:] == ["T", "PSET BAUD 96", ""]
+
+
+def test_a_hand_left_at_the_fast_rate_is_found_there():
+    with make_hand_emulator(None, baud=38400) as emulator:  # as a crashed session would leave it
+        bh = BH262(PortSettings(url=emulator.serve_tcp(0), baud=9600, switch_baud=38400, timeout_s=0.2))
+        bh.open()
+        assert bh.baud == 38400 and bh.pget("BAUD") == 384
+        bh.close()

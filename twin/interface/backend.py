@@ -82,6 +82,10 @@ class Backend(ABC):
         """(MjModel, MjData) to draw in 3-D, where the backend has a MuJoCo world; None otherwise."""
         return None
 
+    def safety_limits(self) -> Any:
+        """The rig's SafetyLimits where it declares its own (hardware: rig.toml); None: the defaults."""
+        return None
+
     def write_calibration(self, directory: Path) -> dict[str, Path]:
         """Put the calibration files in force into `directory` (a run's record of them); name -> path.
 

@@ -25,8 +25,9 @@ POINTS_HEADER = ("taxel", "pressure_kpa", "count")
 TABLE_HEADER = ("taxel", "a_kpa_per_count", "b_kpa")
 CALIBRATION_POINTS_KPA = (0.0, 25.0, 50.0, 100.0, 150.0, 200.0, 300.0)
 """The 7 reference pressures of the manufacturer-style calibration (hardware_facts §4: 7 points)."""
-ACTIVE_THRESHOLD_KPA = 2.0
-"""A taxel is in contact (active in eq. 6) above this pressure: ~4 sigma of the sim's noise."""
+ACTIVE_THRESHOLD_KPA = 0.5
+"""A taxel is in contact (active in eq. 6) above this pressure: 10 sigma of the sim's reading noise
+(4 counts x 0.0125 kPa/count), well above its calibration error; raise it for a noisier real pad."""
 
 
 class CalibrationFileError(ConfigError):

@@ -1,0 +1,71 @@
+"""Force balance: in a static three-finger grasp of each library foam, eq. 6 on the simulated pads
+gives each fingertip's contact force (MuJoCo's ground truth) within 10 % whenever 4 or more of its
+taxels are in contact; and every run records the tactile stream at 30 Hz, raw and in kPa."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments.compress import PHASES, CompressController, CompressProfile
+from twin.recording import open_run
+from twin.rig import Rig
+from twin.session import run_experiment
+from twin.sim.backend import SimBackend
+from twin.sim.foam import LIBRARY, get_object
+from twin.tactile.calibration import active_counts, load_calibration, pad_forces_n
+from twin.tactile.layout import FINGERTIP_PADS, LAYOUT
+
+TIPS = [LAYOUT.pad_names.index(p) for p in FINGERTIP_PADS]
+
+
+@pytest.mark.parametrize("name", list(LIBRARY))
+def test_fingertip_reaction_force_matches_the_contact_force(name: str, tmp_path: Path):
+    backend = SimBackend(get_object(name), seed=1)
+    backend.connect()
+    calibration = load_calibration(backend.write_calibration(tmp_path))
+    hold = CompressProfile(amplitude_counts=0.0, offset_counts=0.0)  # grasp, balance, then hold still
+    Rig(backend, tactile_calibration=calibration).run(CompressController(hold), duration_s=5.0)
+    checked, errors = 0, []
+    for _ in range(15):  # half a second of the static grasp, every scan
+        backend.world.advance_to(backend.world.time_s + 1 / 30)
+        pressure = calibration.to_kpa(backend.tactile.read().counts)
+        eq6 = pad_forces_n(pressure)[TIPS]
+        in_contact = active_counts(pressure)[TIPS]
+        truth = backend.fingertip_contact_force_n()
+        for k in range(3):
+            if in_contact[k] >= 4:
+                checked += 1
+                errors.append(abs(eq6[k] - truth[k]) / truth[k])
+    assert checked >= 30, f"{name}: only {checked} fingertip scans with >= 4 taxels in contact"
+    assert max(errors) < 0.10, f"{name}: worst eq. 6 error {max(errors):.1%} over {checked} scans"
+
+
+def test_every_run_carries_the_tactile_stream_raw_and_in_kpa(tmp_path: Path):
+    run_dir = tmp_path / "run"
+    run_experiment(
+        backend=SimBackend(get_object("block")),
+        controller=CompressController(),
+        phases=PHASES,
+        duration_s=10.0,
+        run_dir=run_dir,
+        experiment={"name": "compress"},
+        argv=["test"],
+    )
+    run = open_run(run_dir)
+    tactile = run.stream("tactile")
+    assert tactile.measured_rate_hz() == pytest.approx(30.0, rel=0.01)
+    assert len(tactile.t_s) == 301
+    spec = run.streams["tactile"].fields
+    assert (spec["counts"].unit, spec["counts"].kind, tuple(spec["counts"].shape)) == (
+        "counts",
+        "raw",
+        (162,),
+    )
+    assert (spec["pressure_kpa"].unit, tuple(spec["pressure_kpa"].shape)) == ("kPa", (162,))
+    counts = tactile.fields["counts"]
+    assert counts.dtype == np.int32 and counts.min() >= 0 and counts.max() <= 32767
+    # The recorded pressures are eq. 5 through the run's own copy of the calibration table.
+    table = load_calibration({"tactile_table": run_dir / run.metadata["calibration_files"]["tactile_table"]})
+    assert np.allclose(tactile.fields["pressure_kpa"], table.to_kpa(counts))
+    assert tactile.fields["pad_force_n"][-60:, :3].min() > 0.5  # the fingertips press on the foam

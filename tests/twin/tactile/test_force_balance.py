@@ -69,3 +69,20 @@ def test_every_run_carries_the_tactile_stream_raw_and_in_kpa(tmp_path: Path):
     table = load_calibration({"tactile_table": run_dir / run.metadata["calibration_files"]["tactile_table"]})
     assert np.allclose(tactile.fields["pressure_kpa"], table.to_kpa(counts))
     assert tactile.fields["pad_force_n"][-60:, :3].min() > 0.5  # the fingertips press on the foam
+
+
+def test_a_sphere_resting_on_the_open_hand_weighs_on_the_palm_pad(tmp_path: Path):
+    """Independent of the contact solver's bookkeeping: eq. 6 on the palm equals m g."""
+    foam = get_object("sphere").with_overrides(density_kg_m3=3000.0)  # heavy enough to read clearly
+    backend = SimBackend(foam, seed=2)
+    backend.connect()
+    calibration = load_calibration(backend.write_calibration(tmp_path))
+    backend.world.advance_to(1.5)  # settled on the palm, fingers open
+    forces = []
+    for _ in range(10):
+        backend.world.advance_to(backend.world.time_s + 1 / 30)
+        forces.append(pad_forces_n(calibration.to_kpa(backend.tactile.read().counts)))
+    mean = np.mean(forces, axis=0)
+    weight_n = foam.mass_kg * 9.81
+    assert mean[LAYOUT.pad_names.index("palm")] == pytest.approx(weight_n, rel=0.02)
+    assert np.all(mean[:6] == 0.0)  # nothing touches the fingers

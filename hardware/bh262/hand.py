@@ -212,12 +212,12 @@ class BH8SerialHand(Hand):
         """Leave RealTime mode and send T: the motors stop driving (the worm drives hold)."""
         if not self.bh.is_open:
             return
-        try:
-            if self.bh.realtime is not None:
+        if self.bh.realtime is not None:
+            try:
                 self.bh.leave_realtime()
-        except (HandTimeoutError, FeedbackFormatError, ReplyFormatError):
-            self.bh.realtime = None
-            self.bh.resync()
+            except (HandTimeoutError, FeedbackFormatError, ReplyFormatError):
+                self.bh.realtime = None
+        self.bh.resync()  # drop whatever a fault left in flight; find the prompt
         self.bh.terminate()
 
     def metadata(self) -> dict:

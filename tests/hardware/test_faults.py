@@ -24,6 +24,13 @@ SAMPLES = int(DURATION_S * 30) + 1
 FAULT_AT = 31  # the 16th sample's feedback: 15 samples are recorded before it
 
 
+def terminated_and_restored(commands: list[str]) -> bool:
+    """After the last LOOP: T reached the hand, then the rate went back to 9600 for the next session."""
+    last_loop = max(i for i, c in enumerate(commands) if c.endswith("LOOP"))
+    after = commands[last_loop:]
+    return "T" in after and after.index("T") < after.index("PSET BAUD 96")
+
+
 def run_with_faults(faults: str, run_dir: Path, object_name: str | None = "block"):
     emulator = make_hand_emulator(object_name, faults=faults)
     url = emulator.serve_tcp(0)
@@ -98,11 +105,11 @@ def test_watchdog_terminates_the_motors_once_the_hand_answers_again(tmp_path: Pa
     """Feedback stops for 1.5 s: the watchdog stops the run and T reaches the hand."""
     run, error, emulator = run_with_faults("mute@31:1.5", tmp_path / "run")
     assert "no valid feedback" in str(error) and run.status == "failed"
-    assert emulator.firmware.commands[-1] == "T"
+    assert terminated_and_restored(emulator.firmware.commands)
     assert emulator.firmware.loop is None
 
 
 def test_err_reply_idles_the_hand_with_t(tmp_path: Path):
     _, error, emulator = run_with_faults("err@31:16", tmp_path / "run")
     assert "COULD_NOT_REACH_POSITION" in str(error)
-    assert emulator.firmware.commands[-1] == "T"
+    assert terminated_and_restored(emulator.firmware.commands)

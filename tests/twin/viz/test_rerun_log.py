@@ -134,7 +134,9 @@ def test_blueprint_views_and_new_streams_join_the_plots(tmp_path):
     views = read_rrd_views(path)
     assert views["hand and foam"]["kind"] == "3D"
     assert views["hand and foam"]["origin"] == "/world"
-    assert views["Tactile & cameras"]["kind"] == "TextDocument"
+    assert views["tactile pads (kPa)"]["kind"] == "2D" and views["tactile pads (kPa)"]["origin"] == "/tactile"
+    assert views["pad forces, eq. 6 (N)"]["kind"] == "TimeSeries"
+    assert views["cameras"]["kind"] == "TextDocument"
     for group in PLOT_GROUPS:
         assert views[group]["kind"] == "TimeSeries"
         assert views[group]["contents"] == [f"/plots/hand/{group}", f"/plots/command/{group}"]

@@ -7,108 +7,50 @@ injected into RealTime replies (see `FaultPlan`) to prove the driver's recovery 
 
 from __future__ import annotations
 
-import contextlib
-import os
 import select
-import socket
 import threading
 import time
-import tty
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from hardware.bh262.firmware import Firmware, RealTimeTwin
 from hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
-from twin.interface.errors import ConfigError
+from hardware.emulation import Fault, Link, PortServer, parse_faults
 
-FAULT_KINDS = ("garbage", "drop", "partial", "late", "err", "vanish", "mute")
+FAULTS = {
+    "garbage": "none",
+    "drop": "none",
+    "partial": "none",
+    "late": "required",
+    "err": "required",
+    "vanish": "none",
+    "mute": "optional",
+}
 DEFAULT_OPTIONS = WireOptions()
 GARBAGE = b"\x00\xfe\x13#?\x7f"
 """Line noise injected by the `garbage` fault: no '*' first, no prompt inside."""
 
 
-@dataclass(frozen=True)
-class Fault:
-    """One fault on the k-th RealTime reply (1-based) of a session."""
-
-    kind: str
-    at_reply: int
-    arg: float | None = None
-
-
 class FaultPlan:
-    """Faults parsed from `KIND@N[:ARG],...`, e.g. `garbage@40,late@80:0.3,err@120:8192,vanish@200`.
+    """Faults on RealTime replies, from `KIND@N[:ARG],...`, e.g. `garbage@40,late@80:0.3,err@120:8192`.
 
-    garbage: noise before the reply; drop: no reply; partial: the first half only; late:S: the reply
-    S seconds late; err:N: `ERR N` instead of the block (the hand drops to Supervisory mode);
+    N counts the RealTime replies of a session (a TCP client's connection; on a pty, the emulator's
+    life). garbage: noise before the reply; drop: no reply; partial: the first half only; late:S: the
+    reply S seconds late; err:N: `ERR N` instead of the block (the hand drops to Supervisory mode);
     vanish: the port disappears; mute[:S]: nothing answered (bytes received are lost) for S seconds,
     or for good without S.
     """
 
-    def __init__(self, faults: tuple[Fault, ...] = ()) -> None:
-        self.faults = {f.at_reply: f for f in faults}
+    def __init__(self, faults: dict[int, Fault] | None = None) -> None:
+        self.faults = faults or {}
 
     @classmethod
     def parse(cls, spec: str | None) -> FaultPlan:
         """Parse a --faults SPEC; ConfigError (one line) when malformed."""
-        if not spec:
-            return cls()
-        faults = []
-        for item in spec.split(","):
-            kind, _, rest = item.strip().partition("@")
-            at, _, arg = rest.partition(":")
-            if kind not in FAULT_KINDS or not at.isdigit() or int(at) < 1:
-                raise ConfigError(
-                    f"--faults: bad item {item!r}: want KIND@N[:ARG], KIND one of {', '.join(FAULT_KINDS)}"
-                )
-            try:
-                value = float(arg) if arg else None
-            except ValueError:
-                raise ConfigError(f"--faults: bad argument in {item!r}") from None
-            if kind in ("late", "err") and value is None:
-                raise ConfigError(f"--faults: {kind} needs an argument ({kind}@N:VALUE)")
-            faults.append(Fault(kind, int(at), value))
-        return cls(tuple(faults))
+        return cls(parse_faults(spec, FAULTS))
 
     def at(self, reply: int) -> Fault | None:
         """The fault planned for this reply, if any."""
         return self.faults.get(reply)
-
-
-class _Link:
-    """One endpoint: a pty master fd or a connected socket."""
-
-    def __init__(self, fd: int | None = None, sock: socket.socket | None = None) -> None:
-        self.fd, self.sock = fd, sock
-
-    def fileno(self) -> int:
-        return self.sock.fileno() if self.sock is not None else self.fd
-
-    def read(self) -> bytes | None:
-        """Bytes waiting; b"" when the peer is gone; None when nothing was there after all."""
-        try:
-            return self.sock.recv(4096) if self.sock is not None else os.read(self.fd, 4096)
-        except (BlockingIOError, InterruptedError):
-            return None
-        except OSError:
-            return b""
-
-    def write(self, data: bytes) -> None:
-        if self.sock is not None:
-            self.sock.sendall(data)
-        else:
-            view = memoryview(data)
-            while view:
-                n = os.write(self.fd, view)
-                view = view[n:]
-
-    def close(self) -> None:
-        if self.sock is not None:
-            with contextlib.suppress(OSError):
-                self.sock.shutdown(socket.SHUT_RDWR)
-            self.sock.close()
-        elif self.fd is not None:
-            os.close(self.fd)
 
 
 class _VanishedError(Exception):
@@ -118,7 +60,7 @@ class _VanishedError(Exception):
 class SerialSession:
     """The hand's side of one serial connection: bytes in, firmware, paced bytes out."""
 
-    def __init__(self, firmware: Firmware, link: _Link, faults: FaultPlan, stop: threading.Event) -> None:
+    def __init__(self, firmware: Firmware, link: Link, faults: FaultPlan, stop: threading.Event) -> None:
         self.fw = firmware
         self.link = link
         self.faults = faults
@@ -263,8 +205,10 @@ class SerialSession:
             raise _VanishedError
 
 
-class HandEmulator:
+class HandEmulator(PortServer):
     """A twin-backed BH8-262 reachable over a pty, TCP or an in-process socket pair."""
+
+    thread_name = "bh8-serial"
 
     def __init__(
         self,
@@ -275,99 +219,19 @@ class HandEmulator:
         faults: FaultPlan | None = None,
         on_event: Callable[[str], None] | None = None,
     ) -> None:
+        super().__init__(on_event)
         self.twin = twin
         self.firmware = Firmware(twin, options=options, power_up_baud=baud)
         self.faults = faults or FaultPlan()
-        self.on_event = on_event or (lambda _msg: None)
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._closers: list[Callable[[], None]] = []
-        self.address: str | None = None
 
-    def _start(self, target: Callable[[], None]) -> None:
-        if not self._threads:
-            self.twin.start()
-        thread = threading.Thread(target=target, name="bh8-serial", daemon=True)
-        thread.start()
-        self._threads.append(thread)
+    def _on_first_start(self) -> None:
+        self.twin.start()
 
-    def serve_pty(self) -> str:
-        """Open a pseudo-terminal and answer on it; returns the device path to open."""
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        path = os.ttyname(slave)
-        self._closers.append(lambda: _close_fd(slave))
-        link = _Link(fd=master)
-
-        def run() -> None:
-            outcome = SerialSession(self.firmware, link, self.faults, self._stop).serve()
-            self.on_event(f"pty session ended: {outcome}")
-            if outcome in ("vanished", "stopped"):
-                link.close()
-                _close_fd(slave)  # the device node goes away with the last descriptor
-
-        self._start(run)
-        self.address = path
-        return path
-
-    def serve_tcp(self, port: int = 0, host: str = "127.0.0.1") -> str:
-        """Listen on host:port (0 picks a free port), one client at a time; returns socket://host:port."""
-        server = socket.create_server((host, port))
-        server.settimeout(0.1)
-        self._closers.append(server.close)
-
-        def run() -> None:
-            while not self._stop.is_set():
-                try:
-                    conn, peer = server.accept()
-                except TimeoutError:
-                    continue
-                except OSError:
-                    return
-                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                self.on_event(f"client {peer[0]}:{peer[1]} connected")
-                outcome = SerialSession(self.firmware, _Link(sock=conn), self.faults, self._stop).serve()
-                _Link(sock=conn).close()
-                self.on_event(f"client left: {outcome}")
-                if outcome == "vanished":
-                    server.close()
-                    return
-
-        self._start(run)
-        self.address = f"socket://{host}:{server.getsockname()[1]}"
-        return self.address
-
-    def serve_socketpair(self) -> socket.socket:
-        """An in-process connection (the bh8emu:// URL): returns the host's end."""
-        host_end, hand_end = socket.socketpair()
-        link = _Link(sock=hand_end)
-
-        def run() -> None:
-            SerialSession(self.firmware, link, self.faults, self._stop).serve()
-            link.close()
-
-        self._start(run)
-        return host_end
-
-    def close(self) -> None:
-        """Stop answering, stop the twin, release the ports."""
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(timeout=2.0)
-        for closer in self._closers:
-            closer()
+    def _on_close(self) -> None:
         self.twin.stop()
 
-    def __enter__(self) -> HandEmulator:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def _close_fd(fd: int) -> None:
-    with contextlib.suppress(OSError):
-        os.close(fd)
+    def _session(self, link: Link) -> str:
+        return SerialSession(self.firmware, link, self.faults, self.stop_event).serve()
 
 
 def make_hand_emulator(

@@ -184,15 +184,36 @@ def layout_table() -> str:
     return "\n".join(lines)
 
 
-def draw_layout(path: str) -> None:
-    """A figure of the 7 pads to scale, every taxel labelled with its id."""
-    import matplotlib
+def canvas_mm() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where each taxel is drawn in 2-D (mm, y down): (162, 2) centres and (162, 2) half sizes.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Pads in their real sizes, each finger's fingertip above its inner link, the three fingers side by
+    side, the palm below: the arrangement of the Rerun heatmap and the notebooks' plots.
+    """
+    centers = np.zeros((len(LAYOUT.area_m2), 2))
+    half = np.zeros((len(LAYOUT.area_m2), 2))
+    for taxel, (row, col) in enumerate(LAYOUT.row_col):
+        pad = LAYOUT.pads[LAYOUT.pad_index[taxel]]
+        mm = pad.pitch_m * 1e3
+        if pad.name == "palm":
+            centers[taxel] = (15.0 + col * mm, 10.0 + row * mm)
+        else:
+            finger = int(pad.name[1]) - 1
+            y0 = -110.0 if pad.name.endswith("_tip") else -52.0
+            centers[taxel] = (finger * 30.0 + col * mm, y0 + (pad.rows - 1 - row) * mm)
+        half[taxel] = 0.45 * mm
+    return centers, half
+
+
+def draw_layout(path: str) -> None:
+    """A figure of the 7 pads to scale, every taxel labelled with its id (no pyplot state touched)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 
-    fig, axes = plt.subplots(1, 3, figsize=(11, 4.5), gridspec_kw={"width_ratios": [1, 1, 2]})
+    fig = Figure(figsize=(11, 4.5))
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1, 2]})
     groups = {"fingertip (f1_tip)": "f1_tip", "inner link (f1_inner)": "f1_inner", "palm": "palm"}
     for ax, (title, pad) in zip(axes, groups.items(), strict=True):
         spec = LAYOUT.pads[LAYOUT.pad_names.index(pad)]
@@ -210,4 +231,3 @@ def draw_layout(path: str) -> None:
     fig.suptitle("Tactile pads (ids; f2/f3 pads are laid out like f1's)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)

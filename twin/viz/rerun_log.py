@@ -181,7 +181,9 @@ class RunRecording:
         pressure = np.asarray(pressure_kpa, dtype=float)
         colors = _heat(pressure / PRESSURE_FULL_SCALE_KPA)
         if not self._tactile_static:
-            centers, half = _pad_canvas()
+            from twin.tactile.layout import canvas_mm
+
+            centers, half = canvas_mm()
             self.rec.log(
                 f"{TACTILE_ENTITY}/names",
                 rr.Points2D(_pad_label_positions(), labels=list(LAYOUT.pad_names), radii=0.1),
@@ -270,32 +272,11 @@ def _heat(x: ArrayLike) -> np.ndarray:
     return ((1 - frac) * _HEAT_STOPS[lo] + frac * _HEAT_STOPS[lo + 1]).astype(np.uint8)
 
 
-def _pad_canvas() -> tuple[np.ndarray, np.ndarray]:
-    """2-D centres and half sizes (mm) of the taxels, pads in their real sizes: each finger's
-    fingertip above its inner link, the three fingers side by side, the palm below."""
-    from twin.tactile.layout import LAYOUT
-
-    centers = np.zeros((len(LAYOUT.area_m2), 2))
-    half = np.zeros((len(LAYOUT.area_m2), 2))
-    for taxel, (row, col) in enumerate(LAYOUT.row_col):
-        pad = LAYOUT.pads[LAYOUT.pad_index[taxel]]
-        mm = pad.pitch_m * 1e3
-        if pad.name == "palm":
-            x0, y0 = 15.0, 10.0
-            centers[taxel] = (x0 + col * mm, y0 + row * mm)
-        else:
-            finger = int(pad.name[1]) - 1
-            y0 = -110.0 if pad.name.endswith("_tip") else -52.0
-            centers[taxel] = (finger * 30.0 + col * mm, y0 + (pad.rows - 1 - row) * mm)
-        half[taxel] = 0.45 * mm
-    return centers, half
-
-
 def _pad_label_positions() -> np.ndarray:
     """Where each pad's name sits on the 2-D canvas (above its first cell)."""
-    from twin.tactile.layout import LAYOUT
+    from twin.tactile.layout import LAYOUT, canvas_mm
 
-    centers, _ = _pad_canvas()
+    centers, _ = canvas_mm()
     return np.array([centers[LAYOUT.pad_index == k].min(axis=0) - (0, 6) for k in range(len(LAYOUT.pads))])
 
 

@@ -1,0 +1,1 @@
+"""The PPS RoboTouch tactile pads: frame format (assumed), driver and emulator."""

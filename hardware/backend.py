@@ -6,10 +6,13 @@ configure fails to connect with DeviceNotConfiguredError, before any run directo
 
 from __future__ import annotations
 
+import shutil
 import time
+from pathlib import Path
 from typing import Any
 
 from hardware.bh262.hand import BH8SerialHand
+from hardware.pps.driver import PPSTactile
 from hardware.rig_config import RigConfig
 from twin.interface.backend import Backend, Clock
 from twin.interface.devices import Hand, HandCommand, HandReading
@@ -85,6 +88,14 @@ class HardwareBackend(Backend):
     def __init__(self, config: RigConfig | None = None) -> None:
         self.config = config or RigConfig()
         self._clock = WallClock()
+        tactile = self.config.tactile_port
+        self.tactile = (
+            None
+            if tactile is None
+            else PPSTactile(
+                self.config.tactile, tactile.url, self._clock, baud=tactile.baud, timeout_s=tactile.timeout_s
+            )
+        )
         port = self.config.hand_port
         if port is None:
             self.hand: Hand = UnconfiguredHand(self.config.hand)
@@ -107,15 +118,29 @@ class HardwareBackend(Backend):
         """The limits of the rig file (the datasheet's when it names none)."""
         return self.config.limits
 
+    def write_calibration(self, directory: Path) -> dict[str, Path]:
+        """Copies of the rig's calibration files, so the run carries what it was converted with."""
+        directory.mkdir(parents=True, exist_ok=True)
+        out = {}
+        for name, source in self.config.calibration.items():
+            out[name] = directory / f"{name}{source.suffix}"
+            shutil.copyfile(source, out[name])
+        return out
+
     def metadata(self) -> dict[str, Any]:
         """Ports and settings of this rig."""
         meta: dict[str, Any] = {"backend": self.name, "rig": self.config.to_json()}
         if isinstance(self.hand, BH8SerialHand):
             meta["hand_driver"] = self.hand.metadata()
+        if self.tactile is not None:
+            meta["tactile_driver"] = self.tactile.metadata()
         return meta
 
     def diagnostics(self) -> dict[str, Any]:
-        """Cycles the hand driver had to recover, and why."""
+        """Cycles the hand driver had to recover and the tactile link's counters."""
+        out: dict[str, Any] = {}
         if isinstance(self.hand, BH8SerialHand):
-            return {"hand_recoveries": list(self.hand.recoveries)}
-        return {}
+            out["hand_recoveries"] = list(self.hand.recoveries)
+        if self.tactile is not None:
+            out["tactile_link"] = self.tactile.diagnostics()
+        return out

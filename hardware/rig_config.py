@@ -17,7 +17,13 @@ with one line naming the file and the key, before anything is opened or written.
     max_velocity_counts_s = 17000
     max_fingertip_force_kg = 2.0
 
-    [calibration]             # files loaded by later devices (tactile lines, stereo intrinsics)
+    [tactile]
+    port = "/dev/ttyUSB1"     # the PPS interface (frame layout: hardware/pps/frame.py)
+    baud = 921600
+    rate_hz = 30.0
+
+    [calibration]             # paths relative to this file
+    tactile_table = "calibration/tactile_table.csv"    # or tactile_points = "...points.csv"
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from typing import Any
 from hardware.bh262.driver import PortSettings
 from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
+from twin.interface.tactile_spec import TactileConfig
 from twin.safety import SafetyLimits
 
 _HAND_KEYS = {
@@ -44,6 +51,12 @@ _HAND_KEYS = {
     "baud_switch_wait_s": float,
     "lcvc": int,
 }
+_TACTILE_KEYS = {"port": str, "baud": int, "rate_hz": float, "timeout_s": float}
+CALIBRATION_FILES = {
+    "tactile_table": "per-taxel lines (taxel,a_kpa_per_count,b_kpa): what eq. 5 loads",
+    "tactile_points": "7-point calibration data (taxel,pressure_kpa,count): fitted when there is no table",
+}
+"""The calibration files a rig may name, and what each holds (twin/tactile/calibration.py)."""
 _LIMIT_KEYS = {
     "finger_counts": list,
     "spread_counts": list,
@@ -63,11 +76,22 @@ class HandPortConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class TactilePortConfig:
+    """The PPS tactile interface of a rig: its port (a device path or pyserial URL) and line rate."""
+
+    url: str
+    baud: int = 921_600
+    timeout_s: float = 0.5
+
+
+@dataclass(frozen=True, kw_only=True)
 class RigConfig:
     """A lab's rig: the hand (None: no hand configured), the hand's sampling, limits, calibration."""
 
     hand_port: HandPortConfig | None = None
     hand: HandConfig = field(default_factory=HandConfig)
+    tactile_port: TactilePortConfig | None = None
+    tactile: TactileConfig = field(default_factory=TactileConfig)
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     calibration: dict[str, Path] = field(default_factory=dict)
     source: Path | None = None
@@ -93,6 +117,7 @@ class RigConfig:
                 "switch_baud": hp.port.switch_baud,
                 "watchdog_cycles": hp.watchdog_cycles,
             },
+            "tactile_port": vars(self.tactile_port) if self.tactile_port else None,
             "limits": vars(self.limits),
             "calibration": {k: str(v) for k, v in self.calibration.items()},
         }
@@ -133,16 +158,28 @@ def load_rig(path: Path | str) -> RigConfig:
         raise ConfigError(f"--rig {path}: cannot read ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"--rig {path}: not valid TOML ({exc})") from None
-    unknown = set(data) - {"hand", "limits", "calibration"}
+    unknown = set(data) - {"hand", "tactile", "limits", "calibration"}
     if unknown:
         raise ConfigError(
-            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; known: hand, limits, calibration"
+            f"{path}: unknown table(s) {', '.join(sorted(unknown))}; "
+            "known: hand, tactile, limits, calibration"
         )
     hand = _typed(f"{path}: [hand]", data.get("hand", {}), _HAND_KEYS)
     limits = _typed(f"{path}: [limits]", data.get("limits", {}), _LIMIT_KEYS)
+    tactile = _typed(f"{path}: [tactile]", data.get("tactile", {}), _TACTILE_KEYS)
     calibration = data.get("calibration", {})
     if not isinstance(calibration, dict) or not all(isinstance(v, str) for v in calibration.values()):
         raise ConfigError(f"{path}: [calibration] maps names to file paths (strings)")
+    unknown = set(calibration) - set(CALIBRATION_FILES)
+    if unknown:
+        raise ConfigError(
+            f"{path}: [calibration] unknown file name(s) {', '.join(sorted(unknown))}; known: "
+            + ", ".join(CALIBRATION_FILES)
+        )
+    files = {k: (path.parent / v) for k, v in calibration.items()}
+    for key, file in files.items():
+        if not file.is_file():
+            raise ConfigError(f"{path}: [calibration].{key}: no such file {file}")
     for key in ("finger_counts", "spread_counts"):
         if key in limits:
             pair = limits[key]
@@ -164,21 +201,40 @@ def load_rig(path: Path | str) -> RigConfig:
             )
         elif set(hand) - {"rate_hz"}:
             raise ConfigError(f"{path}: [hand] settings given without a port")
+        tactile_config = TactileConfig(rate_hz=tactile.pop("rate_hz", TactileConfig().rate_hz))
+        tactile_port = None
+        if "port" in tactile:
+            tactile_port = TactilePortConfig(url=tactile.pop("port"), **tactile)
+            if not {"tactile_table", "tactile_points"} & set(files):
+                raise ConfigError(
+                    "[tactile] pads need their calibration: "
+                    "name tactile_table or tactile_points in [calibration]"
+                )
+        elif tactile:
+            raise ConfigError(f"{path}: [tactile] settings given without a port")
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    base = path.parent
     return RigConfig(
         hand_port=hand_port,
         hand=hand_config,
+        tactile_port=tactile_port,
+        tactile=tactile_config,
         limits=safety,
-        calibration={k: (base / v) for k, v in calibration.items()},
+        calibration=files,
         source=path,
     )
 
 
-def rig_toml(hand_url: str, *, baud: int = 9600, switch_baud: int | None = 38400) -> str:
-    """A rig.toml for a hand on `hand_url` (what `twin emulate rig --rig-file` writes)."""
-    return (
+def rig_toml(
+    hand_url: str,
+    *,
+    baud: int = 9600,
+    switch_baud: int | None = 38400,
+    tactile_url: str | None = None,
+    tactile_table: str | None = None,
+) -> str:
+    """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes."""
+    text = (
         "# written by `twin emulate rig`\n"
         "[hand]\n"
         f'port = "{hand_url}"\n'
@@ -187,3 +243,8 @@ def rig_toml(hand_url: str, *, baud: int = 9600, switch_baud: int | None = 38400
         "rate_hz = 30.0\n"
         "watchdog_cycles = 3\n"
     )
+    if tactile_url:
+        text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n'
+    if tactile_table:
+        text += f'\n[calibration]\ntactile_table = "{tactile_table}"\n'
+    return text

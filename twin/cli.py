@@ -62,10 +62,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
     p.add_argument("--baud", type=int, default=9600, help="rate the hand powers up at (default 9600)")
     p.add_argument("--port", default="pty", metavar="pty|tcp:PORT", help="where to serve (default pty)")
-    p.add_argument("--faults", metavar="SPEC", help="inject faults, e.g. garbage@40,drop@80,vanish@200")
+    p.add_argument("--faults", metavar="SPEC", help="hand faults, e.g. garbage@40,drop@80,vanish@200")
+    p.add_argument("--tactile-faults", metavar="SPEC", help="rig: tactile faults, e.g. corrupt@30,stall@60:1")
     p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
     p.add_argument("--seed", type=int, default=0, help="seed of the twin's sensor noise")
-    p.add_argument("--rig-file", type=Path, metavar="FILE", help="also write a rig.toml pointing here")
+    p.add_argument(
+        "--rig-file", type=Path, metavar="FILE", help="write a rig.toml pointing here (rig: always)"
+    )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
 
     p = sub.add_parser("info", help="summarize a run directory")
@@ -192,6 +195,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from hardware.bh262.emulator import make_hand_emulator
     from hardware.bh262.firmware import SUPPORTED_BAUD
     from hardware.rig_config import rig_toml
+    from hardware.rig_emulator import RigEmulator
     from twin.sim.foam import get_object
 
     if args.baud not in SUPPORTED_BAUD:
@@ -208,18 +212,33 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     def event(message: str) -> None:
         print(f"[emulator] {message}", flush=True)
 
-    emulator = make_hand_emulator(
-        object_name, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
-    )
+    if args.what == "hand":
+        emulator = make_hand_emulator(
+            object_name, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
+        )
+    else:
+        emulator = RigEmulator(
+            object_name,
+            baud=args.baud,
+            faults=args.faults,
+            tactile_faults=args.tactile_faults,
+            seed=args.seed,
+            on_event=event,
+        )
     try:
-        address = emulator.serve_pty() if where == "pty" else emulator.serve_tcp(int(where[4:]))
+        if args.what == "hand":
+            address = emulator.serve_pty() if where == "pty" else emulator.serve_tcp(int(where[4:]))
+        else:
+            address, tactile_address = emulator.serve(where)
     except OSError as exc:
         emulator.close()
         raise ConfigError(f"--port {where}: {exc.strerror or exc}") from None
     print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {args.object})", flush=True)
     if args.what == "rig":
-        print("tactile: not emulated yet (issue 4); cameras: not emulated yet (issue 5)", flush=True)
-    if args.rig_file:
+        print(f"tactile: {tactile_address}  (PPS pads, 162 taxels at 30 Hz)", flush=True)
+        print("cameras: not emulated yet (issue 5)", flush=True)
+        print(f"rig file: {emulator.write_rig_file(args.rig_file)}", flush=True)
+    elif args.rig_file:
         args.rig_file.write_text(rig_toml(address, baud=args.baud))
         print(f"rig file: {args.rig_file}", flush=True)
     print("ready; Ctrl-C stops", flush=True)
@@ -325,7 +344,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         for m in mismatches:
             print(f"differs: {m.stream}.{m.field}: {m.a} vs {m.b}")
     else:
-        print("streams and units: the same (hand, command)")
+        print("streams and units: the same (hand, command, tactile where both have it)")
     print("finger positions: " + describe(agreement))
     return 0
 

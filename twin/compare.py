@@ -45,7 +45,7 @@ class PositionAgreement:
 
 
 def stream_mismatches(
-    run_a: Path | str, run_b: Path | str, streams: tuple[str, ...] = ("hand", "command")
+    run_a: Path | str, run_b: Path | str, streams: tuple[str, ...] = ("hand", "command", "tactile")
 ) -> list[FieldMismatch]:
     """Fields of `streams` whose presence, unit or shape differ between two runs (empty: the same)."""
     a, b = open_run(run_a), open_run(run_b)

@@ -212,8 +212,8 @@ class Rig:
                     if progress is not None:
                         progress(event.t_s)
                 elif event.kind == "sample_tactile":
-                    scan = tactile.read()
-                    self._push(scan.t_s + tactile_latency, "deliver_tactile", scan)
+                    for scan in tactile.read_pending():
+                        self._push(max(scan.t_s + tactile_latency, event.t_s), "deliver_tactile", scan)
                 elif event.kind == "deliver_tactile":
                     self._deliver_tactile(event.payload)
                 elif event.kind == "scene":

@@ -99,6 +99,21 @@ class SerialSession:
             return "closed"
         return "stopped"
 
+    def _ctrl_c(self) -> bool:
+        """During a motion: has a Ctrl-C (0x03) arrived? Other bytes wait for the prompt."""
+        if not select.select([self.link], [], [], 0)[0]:
+            return False
+        data = self.link.read()
+        if not data:
+            return False
+        self._rx_end = max(self._rx_end, time.monotonic()) + len(data) * self._byte_s
+        if EXIT_REALTIME in data:
+            cut = data.index(EXIT_REALTIME)
+            self._buffer += data[:cut] + data[cut + 1 :]
+            return True
+        self._buffer += data
+        return False
+
     def _wait_rx(self) -> None:
         """The request is complete only once its last byte has crossed the wire."""
         delay = self._rx_end - time.monotonic()
@@ -142,7 +157,7 @@ class SerialSession:
         del self._buffer[: end + 1]
         self._wait_rx()
         line = raw.decode("ascii", "replace")
-        rest = self.fw.handle_line(line, self.send)
+        rest = self.fw.handle_line(line, self.send, self._ctrl_c)
         new_baud = self.fw.pending_baud()
         if new_baud is not None:  # PSET BAUD: the echo went at the old rate; the prompt waits for a CR
             self.fw.baud = new_baud

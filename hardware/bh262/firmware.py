@@ -16,6 +16,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -103,10 +104,13 @@ class RealTimeTwin:
         """Worst lag of sim time behind wall time so far (s)."""
 
     def start(self) -> None:
-        """Connect the sim hand and start stepping."""
+        """Connect the sim devices and start stepping (once; later calls do nothing)."""
+        if self._thread.is_alive():
+            return
         with self.lock:
-            if not self.backend.hand.is_connected:
-                self.backend.hand.connect()
+            for device in self.backend.devices():  # the hand, and the tactile pads for the rig emulator
+                if not device.is_connected:
+                    device.connect()
         self._thread.start()
 
     def stop(self) -> None:
@@ -175,6 +179,7 @@ class Firmware:
         """The latest RealTime control block, decoded per motor."""
         self._reset_properties()
         self._last_reported = np.zeros(4)
+        self._abort: Callable[[], bool] = lambda: False
 
     # --- properties -----------------------------------------------------------------------
 
@@ -209,14 +214,21 @@ class Firmware:
         le = self.options.line_end
         return le + BANNER.encode() + le + PROMPT
 
-    def handle_line(self, line: str, send_echo) -> bytes:  # noqa: ANN001
+    def handle_line(
+        self,
+        line: str,
+        send_echo: Callable[[bytes], None],
+        abort: Callable[[], bool] = lambda: False,
+    ) -> bytes:
         """One supervisory line (without CR): `send_echo` is called first; returns the rest of the reply.
 
-        Motion commands return only when the motion has ended, as the prompt does on the hand.
+        Motion commands return only when the motion has ended, as the prompt does on the hand; `abort()`
+        is polled meanwhile and True (a Ctrl-C on the line) stops the motors with ERR 16384.
         """
         le = self.options.line_end
         text = line.strip()
-        send_echo(text.encode("ascii", "replace"))
+        self._abort = abort
+        send_echo(line.encode("ascii", "replace"))  # every character as typed, the CR aside
         self.commands.append(text)
         if not text:
             return PROMPT
@@ -370,6 +382,10 @@ class Firmware:
         last = None
         while time.monotonic() < deadline:
             time.sleep(0.02)
+            if self._abort():
+                with self.twin.lock:
+                    hand.drive(hand.motor_setpoint_counts(), np.zeros(4))  # stop where the servos are
+                raise FirmwareError(ErrorFlag.ABORTED_BY_CTRL_C)
             reading = self._read()
             with self.twin.lock:
                 at_goal = np.allclose(hand.motor_setpoint_counts(), goal, atol=1.0)

@@ -12,6 +12,7 @@ This module never imports the simulator.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import threading
 import time
 from typing import Any
@@ -26,6 +27,8 @@ from twin.interface.specs import DeviceSpec
 from twin.interface.tactile_spec import TactileConfig, tactile_device_spec
 
 DEFAULT_BAUD = 921_600
+PENDING_MAX = 256
+"""Frames kept for read_pending() (8.5 s at 30 Hz)."""
 POLL_S = 0.05
 """Longest the reader blocks in one read, so disconnect() is noticed quickly."""
 
@@ -84,6 +87,7 @@ class PPSTactile(TactileArray):
         self._received_at = 0.0  # time.monotonic() of the newest
         self._returned = 0  # self._received when read()/read_next() last returned
         self._lost: str | None = None
+        self._pending: list[tuple[TactileReading, float]] = []  # (reading, arrival time.monotonic())
         self._joined_bytes = 0  # bytes discarded before the first valid frame (joining mid-frame)
         self._joined_bad = 0
 
@@ -144,7 +148,7 @@ class PPSTactile(TactileArray):
                     f"(timeout {self.timeout_s:g} s)"
                 )
             self._returned = self._received
-            return self._latest
+            return self._stamped()
 
     def read_next(self, timeout_s: float | None = None) -> TactileReading:
         """Wait for a frame newer than the last one returned (default wait: timeout_s), and return it."""
@@ -154,7 +158,29 @@ class PPSTactile(TactileArray):
                 self._returned, self.timeout_s if timeout_s is None else timeout_s, "reading"
             )
             self._returned = self._received
-            return self._latest
+            return self._stamped()
+
+    def read_pending(self) -> list[TactileReading]:
+        """Every valid frame that arrived since the last call (up to the newest PENDING_MAX), oldest
+        first, each stamped with its arrival on the run clock; the port's loss raises."""
+        self._require_connection()
+        with self._cond:
+            self._check_port()
+            if self._received and time.monotonic() - self._received_at > self.timeout_s:
+                raise TactileTimeoutError(
+                    f"no valid frame from the tactile pads on {self.url} for "
+                    f"{time.monotonic() - self._received_at:.2f} s (timeout {self.timeout_s:g} s)"
+                )
+            pending, self._pending = self._pending, []
+            self._returned = self._received
+            now_clock, now = self.clock.now(), time.monotonic()
+        return [dataclasses.replace(r, t_s=now_clock - (now - arrived)) for r, arrived in pending]
+
+    def _stamped(self) -> TactileReading:
+        """The newest reading, its arrival placed on the run clock as it reads now (the rig restarts
+        a wall clock when the run begins, after frames have started to arrive)."""
+        age = time.monotonic() - self._received_at
+        return dataclasses.replace(self._latest, t_s=self.clock.now() - age)
 
     def _wait_for_frame(self, after: int, timeout_s: float, doing: str) -> None:
         with self._cond:
@@ -208,6 +234,9 @@ class PPSTactile(TactileArray):
         )
         self._received += 1
         self._received_at = time.monotonic()
+        self._pending.append((self._latest, self._received_at))
+        if len(self._pending) > PENDING_MAX:  # nobody is draining: keep the newest
+            del self._pending[0]
 
     def diagnostics(self) -> dict[str, Any]:
         """Counters of the link since the first valid frame: frames, drops, bad frames, discarded bytes

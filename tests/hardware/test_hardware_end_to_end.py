@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hardware.bh262.emulator import make_hand_emulator
@@ -37,6 +38,7 @@ def emulated_rig(tmp_path: Path):
         if line.startswith("ready"):
             break
     assert any(line.startswith("hand: /dev/") for line in lines), lines
+    assert any(line.startswith("tactile: /dev/") for line in lines), lines
     yield rig_file
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=10)
@@ -54,6 +56,14 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert run.status == "complete" and run.metadata["backend"] == "hardware"
     assert run.metadata["hand_driver"]["baud"] == 38400
     assert len(run.stream("hand").t_s) == 301
+    tactile = run.stream("tactile")  # the PPS driver against the rig emulator's pads, on the same twin
+    assert tactile.measured_rate_hz() == pytest.approx(30.0, rel=0.01)
+    assert run.metadata["tactile_link"]["dropped_frames"] == 0
+    assert (tmp_path / "hw" / run.metadata["calibration_files"]["tactile_table"]).is_file()
+    sim_tips = open_run(tmp_path / "sim").stream("tactile").fields["pad_force_n"][-90:, :3].mean(axis=0)
+    hw_tips = tactile.fields["pad_force_n"][-90:, :3].mean(axis=0)
+    # The same squeeze felt by the same pads; a real-time grasp may settle a little differently.
+    assert np.all(hw_tips > 0.5) and hw_tips.sum() == pytest.approx(sim_tips.sum(), rel=0.25)
     assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
     agreement = position_agreement(tmp_path / "sim", tmp_path / "hw")
     assert agreement.max_relative_error < 0.02, agreement
@@ -110,6 +120,10 @@ def test_bad_rig_files_are_refused_in_one_line(tmp_path: Path):
         "[limits]\nfinger_counts = [100, 50]\n": "low < high",
         "[limits]\nmax_velocity_counts_s = -1\n": "must be a finite number > 0",
         "[hand\n": "not valid TOML",
+        "[tactile]\nport = 'x'\n": "[tactile] pads need their calibration",
+        "[calibration]\ntactile_tabel = 'a.csv'\n": "unknown file name(s) tactile_tabel",
+        "[calibration]\ntactile_table = 'nope.csv'\n": "no such file",
+        "[tactile]\nbaud = 9600\n": "[tactile] settings given without a port",
     }
     for text, message in cases.items():
         path = tmp_path / "rig.toml"

@@ -152,6 +152,15 @@ class TactileArray(Device):
     def read(self) -> TactileReading:
         """The latest scan of all taxels (sim: scanned now; hardware: the newest frame received)."""
 
+    def read_pending(self) -> list[TactileReading]:
+        """Every scan not yet returned, oldest first: what the rig records at each sampling instant.
+
+        A device scanned on demand (the sim) returns one scan taken now; one that streams frames by
+        itself (the PPS interface) returns those that arrived since the last call, so none is recorded
+        twice or skipped when its clock and the rig's drift apart.
+        """
+        return [self.read()]
+
 
 @dataclass(frozen=True)
 class StereoFrame:

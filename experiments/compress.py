@@ -29,7 +29,10 @@ class CompressProfile:
     close_velocity_counts_s: float = 6000.0
     """Approach speed: ~0.86 rad/s of the inner link, full closing in under 3 s."""
     contact_torque_nm: float = 0.10
-    """A finger stops closing when its distal torque (eq. 2) rises this far above its no-load value."""
+    """A finger stops closing when its distal torque (eq. 2) rises this far above its no-load value..."""
+    contact_samples: int = 2
+    """...in this many consecutive readings: one reading over is an impact or noise spike, not a grasp
+    (it stops the finger where it first crossed)."""
     grasp_torque_nm: float = 0.20
     """Balanced grasp: every finger is servoed to this distal torque before compressing."""
     balance_s: float = 1.5
@@ -49,6 +52,8 @@ class CompressProfile:
         for name in ("close_velocity_counts_s", "contact_torque_nm", "grasp_torque_nm"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"compress: {name} must be > 0")
+        if self.contact_samples < 1:
+            raise ConfigError("compress: contact_samples must be >= 1")
         if self.amplitude_counts < 0 or self.frequency_hz <= 0 or self.balance_s < 0:
             raise ConfigError("compress: amplitude >= 0, frequency > 0 and balance_s >= 0 required")
         if self.offset_counts + self.amplitude_counts > 4000:
@@ -68,6 +73,8 @@ class CompressController:
     _baseline_nm: np.ndarray | None = None
     _hold_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _in_contact: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
+    _over: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=int))
+    _first_over_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _t_phase: float = 0.0
     _t_last: float | None = None
     grasp_counts: np.ndarray | None = None
@@ -96,8 +103,11 @@ class CompressController:
 
     def _close(self, t_s: float, position: np.ndarray, load: np.ndarray) -> np.ndarray:
         p = self.profile
-        touched = ~self._in_contact & (load > p.contact_torque_nm)
-        self._hold_counts[touched] = position[touched]
+        over = load > p.contact_torque_nm
+        self._first_over_counts = np.where(over & (self._over == 0), position, self._first_over_counts)
+        self._over = np.where(over, self._over + 1, 0)
+        touched = ~self._in_contact & (self._over >= p.contact_samples)
+        self._hold_counts[touched] = self._first_over_counts[touched]
         self._in_contact |= touched
         target = np.where(self._in_contact, self._hold_counts, float(units.FINGER_FULL_COUNTS))
         if self._in_contact.all() or t_s - self._t_phase > p.close_timeout_s:

@@ -68,11 +68,12 @@ def position_agreement(
     max_lag_s: float = 0.5,
     lag_step_s: float = 0.002,
     margin_s: float = 0.5,
+    exclude_s: tuple[tuple[float, float], ...] = (),
 ) -> PositionAgreement:
     """Align run b's finger positions to run a's (least squares over lags), then measure the errors.
 
     Both runs are compared on a's sample times, leaving `margin_s` at either end (where one run has
-    no data after shifting).
+    no data after shifting) and the windows `exclude_s` (a's times) out.
     """
     a, b = open_run(run_a).stream("hand"), open_run(run_b).stream("hand")
     pa = a.fields["position_counts"][:, :3].astype(float)
@@ -80,6 +81,8 @@ def position_agreement(
     if len(a.t_s) < 2 or len(b.t_s) < 2:
         raise ValueError("both runs need at least two hand samples")
     window = (a.t_s >= a.t_s[0] + margin_s) & (a.t_s <= a.t_s[-1] - margin_s)
+    for t0, t1 in exclude_s:
+        window &= ~((a.t_s >= t0) & (a.t_s <= t1))
     if not window.any():
         raise ValueError("runs too short for the margin")
     best = None
@@ -97,6 +100,20 @@ def position_agreement(
         rms_error_counts=np.sqrt(np.mean(err**2, axis=0)),
         travel_counts=travel,
     )
+
+
+def phase_changes_s(run: Path | str) -> list[float]:
+    """Times at which the procedure changed phase (from the command stream)."""
+    command = open_run(run).stream("command")
+    phase = command.fields["phase"]
+    return [float(command.t_s[i]) for i in np.flatnonzero(np.diff(phase) != 0) + 1]
+
+
+def contact_windows_s(run: Path | str, half_width_s: float = 0.25) -> tuple[tuple[float, float], ...]:
+    """Windows around the end of closing (first contact): there one sample of timing jitter at the
+    approach speed (6000 counts/s x 33 ms = 200 counts) outweighs everything else."""
+    changes = phase_changes_s(run)
+    return ((changes[0] - half_width_s, changes[0] + half_width_s),) if changes else ()
 
 
 def describe(agreement: PositionAgreement) -> str:

@@ -34,6 +34,10 @@ from twin.interface.devices import HandReading
 from twin.sim.backend import SimBackend
 
 DEFAULT_OPTIONS = WireOptions()
+CATCH_UP_LAG_S = 0.010
+"""Sensors are sampled, and commands applied, with the twin at most this far behind wall time..."""
+CATCH_UP_TIMEOUT_S = 0.03
+"""...waiting at most this long for it (beyond, the reply is simply late)."""
 BANNER = "BarrettHand Firmware Version 4.4.3 (barrett-twin emulator)"
 SUPPORTED_BAUD = (600, 1200, 2400, 4800, 9600, 19200, 38400)
 MOTORS = (1, 2, 3, 4)
@@ -122,6 +126,21 @@ class RealTimeTwin:
     def now(self) -> float:
         """Wall time on the twin's clock (s)."""
         return time.monotonic() - self._t0
+
+    def catch_up(self, max_lag_s: float = CATCH_UP_LAG_S, timeout_s: float = CATCH_UP_TIMEOUT_S) -> None:
+        """Wait (briefly) until sim time is within max_lag_s of wall time.
+
+        A real hand never falls behind; a twin starved of CPU can, and then its sensors would report
+        the past and commands would act late. Sampling and commanding wait for it instead, so a busy
+        machine shows up as a late reply (which the driver tolerates or recovers from), not as a hand
+        in another state than it should be.
+        """
+        if not self._thread.is_alive():
+            return
+        deadline = time.monotonic() + timeout_s
+        world = self.backend.world
+        while self.now() - world.time_s > max_lag_s and time.monotonic() < deadline:
+            time.sleep(0.0005)
 
     def _run(self) -> None:
         world = self.backend.world
@@ -293,6 +312,7 @@ class Firmware:
             raise FirmwareError(ErrorFlag.INVALID_VALUE) from None
 
     def _read(self) -> HandReading:
+        self.twin.catch_up()
         with self.twin.lock:
             return self.twin.backend.hand.read()
 
@@ -415,6 +435,7 @@ class Firmware:
         assert loop is not None
         offset = 0
         hand = self.twin.backend.hand
+        self.twin.catch_up()
         with self.twin.lock:
             goal = hand.motor_setpoint_counts()
             speed = np.zeros(4)

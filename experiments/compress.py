@@ -11,13 +11,20 @@ loop resolves (60 samples per period).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twin import units
 from twin.interface.devices import HandCommand, HandReading
 from twin.interface.errors import ConfigError
+
+if TYPE_CHECKING:
+    from twin.interface.backend import Backend
+    from twin.session import RunOutcome
 
 PHASES = ("close", "balance", "compress")
 
@@ -134,3 +141,32 @@ class CompressController:
     def _enter(self, phase: str, t_s: float) -> None:
         self.phase = phase
         self._t_phase = t_s
+
+
+def run_compress(
+    backend: Backend,
+    run_dir: Path | str,
+    *,
+    duration_s: float,
+    object_name: str,
+    profile: CompressProfile | None = None,
+    progress: Callable[[float], None] | None = None,
+    argv: list[str] | None = None,
+) -> RunOutcome:
+    """The compress procedure on any backend, recorded to run_dir (what `twin run compress` does).
+
+    `object_name` is what is in the hand: the sim knows it, on hardware it is the researcher's word.
+    """
+    from twin.session import run_experiment
+
+    profile = profile or CompressProfile()
+    return run_experiment(
+        backend=backend,
+        controller=CompressController(profile),
+        phases=PHASES,
+        duration_s=duration_s,
+        run_dir=Path(run_dir),
+        experiment={"name": "compress", "object": object_name, "profile": profile.to_json()},
+        progress=progress,
+        argv=argv,
+    )

@@ -132,8 +132,8 @@ def _foam_from_args(args: argparse.Namespace):
 
 def cmd_run_compress(args: argparse.Namespace) -> int:
     """`twin run compress`: validate, run, report."""
-    from experiments.compress import PHASES, CompressController, CompressProfile
-    from twin.session import default_run_dir, run_experiment
+    from experiments.compress import run_compress
+    from twin.session import default_run_dir
 
     foam = _foam_from_args(args)
     run_dir = args.out or default_run_dir("compress", foam.name)
@@ -151,19 +151,11 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
         if args.hand:
             rig = rig.with_hand_port(args.hand)
         backend = HardwareBackend(rig)
-    profile = CompressProfile()
-    experiment = {"name": "compress", "object": foam.name, "profile": profile.to_json()}
     outcome = _with_progress(
         args.duration,
         not args.no_progress,
-        lambda progress: run_experiment(
-            backend=backend,
-            controller=CompressController(profile),
-            phases=PHASES,
-            duration_s=args.duration,
-            run_dir=run_dir,
-            experiment=experiment,
-            progress=progress,
+        lambda progress: run_compress(
+            backend, run_dir, duration_s=args.duration, object_name=foam.name, progress=progress
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")

@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ("realtime", "foam_discretization", "serial_cycle")
+SECTIONS = ("realtime", "foam_discretization", "serial_cycle", "tactile_sensors")
 
 
 def machine() -> str:

@@ -1,8 +1,9 @@
 """The benchmark scripts compute what they claim (quick settings; no timing assertions)."""
 
 import numpy as np
+import pytest
 
-from benchmarks import foam_discretization, realtime, serial_cycle
+from benchmarks import foam_discretization, realtime, serial_cycle, tactile_sensors
 
 
 def test_foam_study_forces_grow_with_depth_and_compare_to_the_reference():
@@ -44,3 +45,14 @@ def test_serial_cycle_rows_carry_the_wire_limit_beside_the_rate():
         "| hand interface (LCV+LCPG / LFV+LFS+LFAP, 1234) | pty | 26 | 147.7 |"
         in serial_cycle.to_markdown(results)
     )
+
+
+def test_why_the_pads_bin_contact_forces():
+    """The evidence behind twin/sim/tactile.py's choice, kept true by a test (docs/tactile_methods.md)."""
+    rows = {r["object"]: r for r in tactile_sensors.run(quick=True)["rows"]}
+    for row in rows.values():  # binning conserves the load, rigid or soft
+        assert row["binning_n"] == pytest.approx(row["load_n"], rel=0.01)
+    assert rows["rigid box"]["touch_grid_n"] == pytest.approx(rows["rigid box"]["load_n"], rel=0.01)
+    flex = rows["flexcomp foam"]
+    assert flex["touch_grid_n"] < 0 and flex["touch_grid_cells"] == 0  # flex contacts: wrong sign, no cell
+    assert flex["tactile_nonzero"] == 0  # the native tactile sensor does not see a flexcomp

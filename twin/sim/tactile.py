@@ -6,7 +6,7 @@ Gaussian of width `SPREAD_SIGMA_M` (a fingertip-sized patch of foam presses on s
 flexcomp's contacts are a few millimetres to a centimetre apart). Spreading conserves the force, so
 eq. 6 on the binned pressures returns the contact force on the pad up to noise, quantization and
 calibration error. Why binning rather than MuJoCo's tactile sensor or the touch_grid plugin:
-benchmarks/tactile_methods.md.
+docs/tactile_methods.md.
 
 The sensor itself: each taxel has its own true line (gain and offset spread as on a real pad); the
 reading is the inverse of that line, plus Gaussian noise, rounded and saturated to 0-32767. The

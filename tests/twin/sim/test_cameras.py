@@ -1,0 +1,198 @@
+"""The simulated stereo pair: real EGL rendering, its frames, and its ground-truth calibration."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import mujoco
+import numpy as np
+import pytest
+
+from twin.interface.errors import ConfigError
+from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
+from twin.sim.cameras import (
+    LEFT_CAMERA,
+    RIGHT_CAMERA,
+    SimStereo,
+    add_stereo_cameras,
+    ground_truth_calibration,
+)
+from twin.sim.foam import get_object
+from twin.sim.scene import compile_scene, scene_mjcf
+from twin.sim.world import SimWorld
+from twin.vision.calibration import StereoCalibration
+
+CONFIG = StereoConfig()
+
+
+def _world(palm_pos: list[float] | None = None, palm_euler: list[float] | None = None) -> SimWorld:
+    root = scene_mjcf(get_object("block"))
+    add_stereo_cameras(root, CONFIG)
+    if palm_pos is not None:  # a hand that is not at the world origin: the hand frame must follow it
+        palm = root.find("body", "palm")
+        palm.pos, palm.euler = palm_pos, palm_euler
+    return SimWorld(compile_scene(root))
+
+
+@pytest.fixture(scope="module")
+def world() -> SimWorld:
+    return _world()
+
+
+@pytest.fixture(scope="module")
+def stereo(world: SimWorld):
+    cam = SimStereo(world, CONFIG, np.random.default_rng(0))
+    with cam:
+        yield cam
+
+
+def _foam_mask(world: SimWorld, camera: str, width: int, height: int) -> np.ndarray:
+    """Pixels MuJoCo's segmentation rendering assigns to the foam's flex."""
+    renderer = mujoco.Renderer(world.model, height=height, width=width)
+    try:
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(world.data, camera=camera)
+        seg = renderer.render()
+    finally:
+        renderer.close()
+    return (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_FLEX)) & (seg[..., 0] == 0)
+
+
+def _project(cal: StereoCalibration, world: SimWorld, side: str) -> np.ndarray:
+    """The foam's flex vertices (hand frame) projected with the calibration, (N, 2) pixels."""
+    palm = world.model.body("palm").id
+    hand_from_world = np.eye(4)
+    rot = world.data.xmat[palm].reshape(3, 3)
+    hand_from_world[:3, :3] = rot.T
+    hand_from_world[:3, 3] = -rot.T @ world.data.xpos[palm]
+    points = world.data.flexvert_xpos @ hand_from_world[:3, :3].T + hand_from_world[:3, 3]
+    cam_from_hand = np.linalg.inv(cal.hand_from_left)
+    intrinsics = cal.left
+    if side == "right":
+        left_to_right = np.eye(4)
+        left_to_right[:3, :3], left_to_right[:3, 3] = cal.rotation, cal.translation_m
+        cam_from_hand = left_to_right @ cam_from_hand
+        intrinsics = cal.right
+    rvec, _ = cv2.Rodrigues(cam_from_hand[:3, :3])
+    pixels, _ = cv2.projectPoints(
+        points, rvec, cam_from_hand[:3, 3], intrinsics.matrix, intrinsics.distortion
+    )
+    return pixels.reshape(-1, 2)
+
+
+def _check_projection(cal: StereoCalibration, world: SimWorld, width: int, height: int) -> None:
+    """Projected vertices fall on foam pixels; their silhouette matches the rendered one to a fraction
+    of a pixel (a half-pixel principal-point slip would fail the centroid check)."""
+    for side, camera in (("left", LEFT_CAMERA), ("right", RIGHT_CAMERA)):
+        mask = _foam_mask(world, camera, width, height)
+        pixels = _project(cal, world, side)
+        cols, rows = np.rint(pixels).astype(int).T
+        assert np.all((cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)), side
+        near_foam = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert near_foam[rows, cols].all(), f"{side}: projected vertices off the foam"
+        hull = cv2.convexHull(pixels.astype(np.float32))
+        moments = cv2.moments(hull)
+        hull_centroid = np.array([moments["m10"], moments["m01"]]) / moments["m00"]
+        ys, xs = np.nonzero(mask)
+        mask_centroid = np.array([xs.mean(), ys.mean()])
+        np.testing.assert_allclose(mask_centroid, hull_centroid, atol=0.2, err_msg=side)
+        # The rendered skin stands the flex radius (1 mm, ~1 px) proud of the vertices: ~4 % more area.
+        assert mask.sum() == pytest.approx(1.04 * moments["m00"], rel=0.03), side
+
+
+def test_spec_declares_both_frames():
+    spec = stereo_device_spec(CONFIG)
+    assert spec.rate_hz == 30.0 and set(spec.channels) == {"left", "right"}
+    for channel in spec.channels.values():
+        assert channel.shape == (240, 320, 3) and channel.dtype == "uint8"
+        assert channel.saturation == (0, 255) and channel.noise_std == CONFIG.noise_std
+    # Flea2 (7.4 um pixels) behind a 6 mm lens: f = 811 px at 640x480, 405 px at 320x240.
+    assert CONFIG.fovy_deg == pytest.approx(32.98, abs=0.01)
+    assert CONFIG.focal_px == pytest.approx(6.0 / 0.0074 / 2, rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    "overrides", [{"rate_hz": 0}, {"noise_std": -1}, {"width": 1280}, {"height": 200}, {"fovy_deg": 180}]
+)
+def test_config_rejects_bad_values(overrides):
+    with pytest.raises(ConfigError):
+        StereoConfig(**overrides)
+
+
+def test_frames_are_processed_size_and_show_the_scene(stereo, world):
+    frame = stereo.read()
+    assert frame.t_s == world.time_s
+    for image in (frame.left, frame.right):
+        assert image.shape == (240, 320, 3) and image.dtype == np.uint8
+        assert image.std() > 20  # not blank
+    assert not np.array_equal(frame.left, frame.right)
+    # The foam is the pale yellow-orange, porous block where the segmentation puts it.
+    mask = _foam_mask(world, LEFT_CAMERA, 320, 240)
+    foam = frame.left[mask].astype(float)
+    assert mask.sum() > 2000
+    assert foam[:, 0].mean() > foam[:, 2].mean() + 40  # yellow: red well above blue
+    assert foam[:, 0].std() > 8  # pores, not a flat colour
+
+
+def test_noise_is_declared_and_seeded(world):
+    quiet = SimStereo(world, StereoConfig(noise_std=0.0), np.random.default_rng(1), render_native=True)
+    noisy = [SimStereo(world, CONFIG, np.random.default_rng(5)) for _ in range(2)]
+    with quiet, noisy[0], noisy[1]:
+        clean = quiet.read()
+        a, b = noisy[0].read(), noisy[1].read()
+        assert np.array_equal(clean.left, quiet.read().left)  # noiseless: deterministic
+    assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)  # same seed, same frame
+    diff = a.left.astype(float) - clean.left
+    unclipped = (clean.left > 10) & (clean.left < 245)
+    assert diff[unclipped].std() == pytest.approx(CONFIG.noise_std, rel=0.1)
+
+
+def test_foam_centre_projects_near_both_image_centres(world):
+    cal = ground_truth_calibration(world.model, world.data, CONFIG)
+    for side in ("left", "right"):
+        centre = _project(cal, world, side).mean(axis=0)
+        assert np.linalg.norm(centre - [159.5, 119.5]) < 15, (side, centre)
+
+
+def test_calibration_geometry_matches_the_rig(world):
+    cal = ground_truth_calibration(world.model, world.data, CONFIG)
+    assert cal.baseline_m == pytest.approx(0.20, abs=0.01)
+    axis_angle = math.degrees(math.acos(np.clip(cal.rotation[2, 2], -1, 1)))
+    assert axis_angle == pytest.approx(30.0, abs=3.0)
+    np.testing.assert_allclose(cal.rotation @ cal.rotation.T, np.eye(3), atol=1e-9)
+    # Above the palm, looking down: the left camera's optical axis points to -z of the hand.
+    assert cal.hand_from_left[2, 3] > 0.3 and cal.hand_from_left[2, 2] < -0.9
+    k = cal.left.matrix
+    assert cal.left.image_size == (320, 240)
+    assert k[0, 0] == k[1, 1] == pytest.approx(CONFIG.focal_px)
+    assert (k[0, 2], k[1, 2]) == (159.5, 119.5)
+
+
+def test_calibration_projects_onto_rendered_foam(world):
+    _check_projection(ground_truth_calibration(world.model, world.data, CONFIG), world, 320, 240)
+
+
+def test_scaled_calibration_holds_at_native_size(world):
+    cal = ground_truth_calibration(world.model, world.data, CONFIG).scaled(640, 480)
+    _check_projection(cal, world, 640, 480)
+
+
+def test_calibration_follows_a_moved_hand(world):
+    moved = _world(palm_pos=[0.01, 0.015, -0.01], palm_euler=[0.0, 0.0, 0.3])  # below the foam
+    cal = ground_truth_calibration(moved.model, moved.data, CONFIG)
+    at_rest = ground_truth_calibration(world.model, world.data, CONFIG)
+    assert not np.allclose(cal.hand_from_left, at_rest.hand_from_left)
+    _check_projection(cal, moved, 320, 240)
+
+
+def test_calibration_round_trips_through_json(world, tmp_path):
+    cal = ground_truth_calibration(world.model, world.data, CONFIG)
+    loaded = StereoCalibration.load(cal.save(tmp_path / "stereo.json"))
+    for a, b in ((cal.left, loaded.left), (cal.right, loaded.right)):
+        np.testing.assert_array_equal(a.matrix, b.matrix)
+        np.testing.assert_array_equal(a.distortion, b.distortion)
+        assert a.image_size == b.image_size
+    np.testing.assert_array_equal(cal.rotation, loaded.rotation)
+    np.testing.assert_array_equal(cal.translation_m, loaded.translation_m)
+    np.testing.assert_array_equal(cal.hand_from_left, loaded.hand_from_left)

@@ -1,0 +1,245 @@
+"""The simulated Flea2 stereo pair: two MuJoCo cameras above the palm-up hand, rendered offscreen.
+
+Rig (hardware_facts §5, paper §4): the cameras are `BASELINE_M` apart along the palm's x axis, each
+toed in by half of `VERGENCE_DEG` so the optical axes cross at `TARGET_M` (on the palm axis, mid-height
+of the foam); that puts them 0.1 / tan 15 deg = 373 mm above the target, 386 mm from it along each axis.
+Image "up" is the palm's +y (toward F3). Frames are rendered at the native 640x480, area-averaged
+to the processed 320x240 (as a camera read out at full resolution and scaled), then noised.
+
+Conventions for the calibration are OpenCV's (twin.vision.calibration): a MuJoCo camera looks along
+its -z with y up, an OpenCV camera along +z with y down, so cv_from_mujoco = diag(1, -1, -1).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import cv2
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from numpy.typing import NDArray
+
+from twin.interface.devices import StereoCamera, StereoFrame
+from twin.interface.specs import DeviceSpec
+from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
+from twin.sim.world import SimWorld
+from twin.vision.calibration import CameraIntrinsics, StereoCalibration
+
+LEFT_CAMERA, RIGHT_CAMERA = "stereo_left", "stereo_right"
+BASELINE_M = 0.20
+VERGENCE_DEG = 30.0
+TARGET_M = (0.0, 0.0, 0.11)
+"""Where the optical axes cross (palm frame): the palm centre, at the foam's mid-height."""
+HAND_BODY = "palm"
+"""The hand frame is the palm body's frame."""
+FOAM_NAME = "foam"
+"""twin.sim.scene.FOAM_NAME (not imported: scene.py may import this module)."""
+CV_FROM_MUJOCO = np.diag([1.0, -1.0, -1.0])
+"""Camera axes: OpenCV (x right, y down, z forward) from MuJoCo (x right, y up, looking along -z)."""
+
+
+def stereo_camera_poses(
+    baseline_m: float = BASELINE_M,
+    vergence_deg: float = VERGENCE_DEG,
+    target_m: Sequence[float] = TARGET_M,
+) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Position and MuJoCo xyaxes of each camera: baseline along x, converging on target_m from above."""
+    target = np.asarray(target_m, dtype=float)
+    half = math.radians(vergence_deg) / 2.0
+    height = 0.5 * baseline_m / math.tan(half)
+    poses = {}
+    for name, side in ((LEFT_CAMERA, -1.0), (RIGHT_CAMERA, 1.0)):
+        pos = target + np.array([side * baseline_m / 2.0, 0.0, height])
+        forward = (target - pos) / np.linalg.norm(target - pos)
+        x_axis = np.cross(forward, [0.0, 1.0, 0.0])  # image right; image up stays the palm's +y
+        x_axis /= np.linalg.norm(x_axis)
+        y_axis = np.cross(-forward, x_axis)
+        poses[name] = (pos, np.concatenate([x_axis, y_axis]))
+    return poses
+
+
+def add_stereo_cameras(
+    root: mjcf.RootElement,
+    config: StereoConfig | None = None,
+    *,
+    baseline_m: float = BASELINE_M,
+    vergence_deg: float = VERGENCE_DEG,
+    target_m: Sequence[float] = TARGET_M,
+    foam_texture: bool = True,
+) -> None:
+    """Add the Flea2 pair to the world body, cheap offscreen rendering, and a porous foam texture."""
+    config = config or StereoConfig()
+    for name, (pos, xyaxes) in stereo_camera_poses(baseline_m, vergence_deg, target_m).items():
+        root.worldbody.add(
+            "camera", name=name, pos=pos.tolist(), xyaxes=xyaxes.tolist(), fovy=config.fovy_deg
+        )
+    # Shadows and multisampling cost ~20x on a CPU renderer (hardware_facts §7).
+    root.visual.quality.shadowsize = 0
+    root.visual.quality.offsamples = 0
+    glob = root.visual.get_children("global")
+    glob.offwidth = max(glob.offwidth or 0, config.native_width)
+    glob.offheight = max(glob.offheight or 0, config.native_height)
+    if foam_texture:
+        add_foam_texture(root)
+
+
+def add_foam_texture(root: mjcf.RootElement, name: str = FOAM_NAME) -> bool:
+    """Give the flexcomp `name` an open-cell look: random dark pores, tinted by its rgba; False if absent.
+
+    The texture is grey-scale (white with grey pores) so the object's own rgba keeps its colour; the
+    pores give block matching (StereoBM) the surface texture a real foam has: at the working
+    distance a pore is ~1 processed pixel and the pattern does not repeat across the object.
+    """
+    foam = root.find("flexcomp", name)
+    if foam is None:
+        return False
+    texture = f"{name}_pores"
+    if root.find("texture", texture) is None:
+        root.asset.add(
+            "texture",
+            name=texture,
+            type="2d",
+            builtin="flat",
+            mark="random",
+            random=0.4,
+            rgb1=[1.0, 1.0, 1.0],
+            rgb2=[1.0, 1.0, 1.0],
+            markrgb=[0.45, 0.45, 0.45],
+            width=256,
+            height=256,
+        )
+        root.asset.add(
+            "material",
+            name=texture,
+            texture=texture,
+            texrepeat=[1.0, 1.0],
+            texuniform="true",
+            specular=0.05,
+            shininess=0.05,
+        )
+    if foam.rgba is None:
+        foam.rgba = [0.95, 0.75, 0.35, 1.0]  # pale yellow-orange polyurethane
+    foam.material = texture
+    return True
+
+
+def _pose(xpos: NDArray[np.float64], xmat: NDArray[np.float64]) -> NDArray[np.float64]:
+    t = np.eye(4)
+    t[:3, :3] = np.asarray(xmat).reshape(3, 3)
+    t[:3, 3] = xpos
+    return t
+
+
+def camera_pose_cv(model: mujoco.MjModel, data: mujoco.MjData, camera: str) -> NDArray[np.float64]:
+    """4x4 world pose of `camera` in OpenCV axes (z along the optical axis, y down the image)."""
+    cam = model.camera(camera).id
+    pose = _pose(data.cam_xpos[cam], data.cam_xmat[cam])
+    pose[:3, :3] = pose[:3, :3] @ CV_FROM_MUJOCO.T
+    return pose
+
+
+def camera_intrinsics(model: mujoco.MjModel, camera: str, width: int, height: int) -> CameraIntrinsics:
+    """MuJoCo's pinhole as an OpenCV K: f = (H/2)/tan(fovy/2), square pixels, centre (W-1)/2, (H-1)/2.
+
+    MuJoCo's frustum spans the image edges, so pixel i covers [i, i+1] and the optical axis hits
+    W/2, H/2 in edge coordinates; OpenCV counts from the first pixel's centre, hence the -0.5.
+    """
+    cam = model.camera(camera).id
+    f = 0.5 * height / math.tan(math.radians(float(model.cam_fovy[cam])) / 2.0)
+    k = np.array([[f, 0.0, width / 2.0 - 0.5], [0.0, f, height / 2.0 - 0.5], [0.0, 0.0, 1.0]])
+    return CameraIntrinsics(k, np.zeros(5), (width, height))
+
+
+def ground_truth_calibration(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    config: StereoConfig | None = None,
+    *,
+    hand_body: str = HAND_BODY,
+) -> StereoCalibration:
+    """The exact calibration of the simulated pair at the processed size (what a perfect rig would fit)."""
+    config = config or StereoConfig()
+    world_left = camera_pose_cv(model, data, LEFT_CAMERA)
+    world_right = camera_pose_cv(model, data, RIGHT_CAMERA)
+    right_from_left = np.linalg.inv(world_right) @ world_left
+    body = model.body(hand_body).id
+    hand_from_left = np.linalg.inv(_pose(data.xpos[body], data.xmat[body])) @ world_left
+    return StereoCalibration(
+        camera_intrinsics(model, LEFT_CAMERA, config.width, config.height),
+        camera_intrinsics(model, RIGHT_CAMERA, config.width, config.height),
+        right_from_left[:3, :3],
+        right_from_left[:3, 3],
+        hand_from_left,
+        "simulated ground truth",
+    )
+
+
+class SimStereo(StereoCamera):
+    """The two MuJoCo cameras of a SimWorld rendered offscreen (EGL), frames at the processed size.
+
+    With `render_native` (default) both views are rendered at the native 640x480 and area-averaged to
+    320x240 (anti-aliased like a scaled camera image); otherwise they are rendered at 320x240 directly
+    (about 2x cheaper, with aliased edges). The declared noise is added to the delivered frame.
+    """
+
+    def __init__(
+        self,
+        world: SimWorld,
+        config: StereoConfig,
+        rng: np.random.Generator,
+        *,
+        render_native: bool = True,
+    ) -> None:
+        super().__init__()
+        self.world = world
+        self.config = config
+        self.render_native = render_native
+        self._spec = stereo_device_spec(config)
+        self._rng = rng
+        self._renderer: mujoco.Renderer | None = None
+        for name in (LEFT_CAMERA, RIGHT_CAMERA):
+            world.model.camera(name)  # KeyError now rather than at connect() when the rig is missing
+
+    @property
+    def spec(self) -> DeviceSpec:
+        """Declared rate, latency and channels."""
+        return self._spec
+
+    def _connect(self) -> None:
+        c = self.config
+        w, h = (c.native_width, c.native_height) if self.render_native else (c.width, c.height)
+        self._renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+
+    def _disconnect(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def calibration(self) -> StereoCalibration:
+        """The ground-truth calibration of this pair now (the hand frame is the palm body)."""
+        return ground_truth_calibration(self.world.model, self.world.data, self.config)
+
+    def render(self, camera: str) -> NDArray[np.uint8]:
+        """One noiseless view at the processed size, from the world's present state."""
+        self._require_connection()
+        assert self._renderer is not None
+        self._renderer.update_scene(self.world.data, camera=camera)
+        image = self._renderer.render()
+        c = self.config
+        if image.shape[:2] != (c.height, c.width):
+            image = cv2.resize(image, (c.width, c.height), interpolation=cv2.INTER_AREA)
+        return image
+
+    def _corrupt(self, image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        if self.config.noise_std <= 0:
+            return image
+        noise = self._rng.standard_normal(image.shape, dtype=np.float32)  # float32: ~2x cheaper
+        noisy = image.astype(np.float32) + np.float32(self.config.noise_std) * noise
+        return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+    def read(self) -> StereoFrame:
+        """Both views of the same physics state (a hardware-triggered pair), noised, at sim time."""
+        left, right = self.render(LEFT_CAMERA), self.render(RIGHT_CAMERA)
+        return StereoFrame(t_s=self.world.time_s, left=self._corrupt(left), right=self._corrupt(right))

@@ -11,7 +11,9 @@ import numpy as np
 
 from twin.interface.backend import Backend, Clock
 from twin.interface.hand_spec import HandConfig
+from twin.interface.stereo_spec import StereoConfig
 from twin.interface.tactile_spec import TactileConfig
+from twin.sim.cameras import SimStereo
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
@@ -37,7 +39,7 @@ class SimClock(Clock):
 
 
 class SimBackend(Backend):
-    """Hand (and later tactile pads and cameras) on one MuJoCo world; deterministic for a seed."""
+    """Hand, tactile pads and optionally the stereo pair on one MuJoCo world; deterministic for a seed."""
 
     name = "sim"
 
@@ -49,10 +51,13 @@ class SimBackend(Backend):
         *,
         tactile_config: TactileConfig | None = None,
         tactile: bool = True,
+        stereo_config: StereoConfig | None = None,
+        stereo: bool = False,
+        stereo_render_native: bool = True,
     ) -> None:
         self.foam = foam
         self.seed = seed
-        self.world = SimWorld(build_model(foam))
+        self.world = SimWorld(build_model(foam, cameras=stereo))
         rng = np.random.default_rng(seed)
         self.hand = SimHand(self.world, hand_config or HandConfig(), rng)
         self.tactile = (
@@ -63,6 +68,16 @@ class SimBackend(Backend):
                 np.random.default_rng([seed, 1]),  # its own noise stream: hand readings stay as they were
             )
             if tactile
+            else None
+        )
+        self.stereo = (
+            SimStereo(
+                self.world,
+                stereo_config or StereoConfig(),
+                np.random.default_rng([seed, 2]),
+                render_native=stereo_render_native,
+            )
+            if stereo
             else None
         )
         self._clock = SimClock(self.world)
@@ -135,4 +150,5 @@ class SimBackend(Backend):
             "object": self.foam.to_json() if self.foam else None,
             "hand_config": vars(self.hand.config),
             "tactile_config": vars(self.tactile.config) if self.tactile else None,
+            "stereo_config": vars(self.stereo.config) if self.stereo else None,
         }

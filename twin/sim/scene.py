@@ -17,11 +17,16 @@ PALM_SURFACE_Z_M = 0.075
 FOAM_NAME = "foam"
 
 
-def scene_mjcf(foam: FoamParams | None = None) -> mjcf.RootElement:
-    """The hand scene as an mjcf tree, with the foam resting on the palm if given."""
+def scene_mjcf(foam: FoamParams | None = None, *, cameras: bool = False) -> mjcf.RootElement:
+    """The hand scene as an mjcf tree, with the foam resting on the palm if given, and the simulated
+    Flea2 stereo pair (twin.sim.cameras) above it if `cameras`."""
     root = mjcf.from_path(str(SCENE_XML))
     if foam is not None:
         add_foam(root, foam)
+    if cameras:
+        from twin.sim.cameras import add_stereo_cameras  # cameras.py reads FOAM_NAME from here
+
+        add_stereo_cameras(root)
     return root
 
 
@@ -59,6 +64,6 @@ def compile_scene(root: mjcf.RootElement) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
 
 
-def build_model(foam: FoamParams | None = None) -> mujoco.MjModel:
-    """The compiled scene with an optional foam object."""
-    return compile_scene(scene_mjcf(foam))
+def build_model(foam: FoamParams | None = None, *, cameras: bool = False) -> mujoco.MjModel:
+    """The compiled scene with an optional foam object and, optionally, the stereo cameras."""
+    return compile_scene(scene_mjcf(foam, cameras=cameras))

@@ -3,11 +3,14 @@
 A stream is a table sampled at its own rate: a float64 ``t_s`` column (run clock, seconds) first,
 then one column per declared field. Scalar fields are primitive Arrow columns; shaped fields are
 nested ``fixed_size_list`` columns (one level per dimension, row-major), so pandas, polars and
-DuckDB see the structure without our code. Units, kinds and shapes travel as Arrow metadata.
+DuckDB see the structure without our code. A leading dimension of ``RAGGED`` (-1) varies from row to
+row (a point cloud, a mesh, an encoded image): an Arrow ``list`` of the fixed inner shape, read back as
+a list of arrays. Units, kinds and shapes travel as Arrow metadata.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import re
@@ -37,6 +40,8 @@ KINDS = frozenset({"raw", "physical", "command", "truth", "status"})
 """What a field holds: hardware units, converted units, a command, sim ground truth, a state."""
 
 _NAME = re.compile(r"[a-z0-9_]+")
+RAGGED = -1
+"""A leading field dimension whose length varies per sample, e.g. ``shape=(RAGGED, 3)`` for points."""
 
 
 def _check_name(name: object, what: str) -> None:
@@ -60,13 +65,19 @@ class FieldSpec:
         object.__setattr__(self, "shape", shape)  # accept lists (e.g. from JSON)
         if not isinstance(self.unit, str) or not self.unit:
             raise ValueError(f"field unit must be a non-empty string, got {self.unit!r}")
-        if not all(isinstance(d, int | np.integer) and d > 0 for d in shape):
-            raise ValueError(f"field shape {shape} must be a tuple of positive ints")
+        dims = shape[1:] if shape and shape[0] == RAGGED else shape
+        if not all(isinstance(d, int | np.integer) and d > 0 for d in dims):
+            raise ValueError(f"field shape {shape} must be positive ints (the first may be {RAGGED}: ragged)")
         object.__setattr__(self, "shape", tuple(int(d) for d in shape))
         if self.dtype not in DTYPES:
             raise ValueError(f"field dtype {self.dtype!r} not one of {sorted(DTYPES)}")
         if self.kind not in KINDS:
             raise ValueError(f"field kind {self.kind!r} not one of {sorted(KINDS)}")
+
+    @property
+    def ragged(self) -> bool:
+        """Whether the leading dimension varies from sample to sample."""
+        return bool(self.shape) and self.shape[0] == RAGGED
 
     def to_json(self) -> dict:
         """A JSON-ready dict of this spec."""
@@ -139,7 +150,7 @@ def arrow_type(spec: FieldSpec) -> pa.DataType:
     """The Arrow type of one field: primitive, or one fixed_size_list level per dimension."""
     t = DTYPES[spec.dtype]
     for dim in reversed(spec.shape):
-        t = pa.list_(t, dim)
+        t = pa.list_(t) if dim == RAGGED else pa.list_(t, dim)
     return t
 
 
@@ -169,19 +180,39 @@ def arrow_schema(spec: StreamSpec) -> pa.Schema:
     return pa.schema([time, *fields], metadata=meta)
 
 
-def to_arrow(values: np.ndarray, spec: FieldSpec) -> pa.Array:
-    """An (n, *shape) numpy array as an Arrow column of ``arrow_type(spec)``."""
-    arr: pa.Array = pa.array(np.ascontiguousarray(values).reshape(-1), type=DTYPES[spec.dtype])
+def to_arrow(values: np.ndarray | list[np.ndarray], spec: FieldSpec) -> pa.Array:
+    """An (n, *shape) numpy array (ragged: a list of n (k_i, *inner) arrays) as an Arrow column."""
+    if spec.ragged:
+        rows = [np.ascontiguousarray(v).reshape(-1) for v in values]
+        inner = math.prod(spec.shape[1:])
+        lengths = np.array([len(r) // inner for r in rows], dtype=np.int32)
+        flat = np.concatenate(rows) if rows else np.zeros(0)
+        arr: pa.Array = pa.array(flat.astype(spec.dtype, copy=False), type=DTYPES[spec.dtype])
+        for dim in reversed(spec.shape[1:]):
+            arr = pa.FixedSizeListArray.from_arrays(arr, dim)
+        offsets = pa.array(np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32))
+        return pa.ListArray.from_arrays(offsets, arr)
+    arr = pa.array(np.ascontiguousarray(values).reshape(-1), type=DTYPES[spec.dtype])
     for dim in reversed(spec.shape):
         arr = pa.FixedSizeListArray.from_arrays(arr, dim)
     return arr
 
 
-def to_numpy(column: pa.Array | pa.ChunkedArray, spec: FieldSpec) -> np.ndarray:
-    """An Arrow column of ``arrow_type(spec)`` as a writable (n, *shape) array of spec.dtype."""
+def to_numpy(column: pa.Array | pa.ChunkedArray, spec: FieldSpec) -> np.ndarray | list[np.ndarray]:
+    """An Arrow column of ``arrow_type(spec)`` as a writable (n, *shape) array of spec.dtype
+    (ragged: a list of n (k_i, *inner) arrays)."""
     if isinstance(column, pa.ChunkedArray):
         column = column.combine_chunks()
     n = len(column)
+    if spec.ragged:
+        offsets = column.offsets.to_numpy() - column.offsets[0].as_py()
+        inner = spec.shape[1:]
+        values = column.flatten()
+        for _ in inner:
+            values = values.flatten()
+        flat = np.array(values.to_numpy(zero_copy_only=False), dtype=spec.dtype)
+        size = math.prod(inner)
+        return [flat[a * size : b * size].reshape((-1, *inner)) for a, b in itertools.pairwise(offsets)]
     for _ in spec.shape:
         column = column.flatten()
     flat = column.to_numpy(zero_copy_only=False)

@@ -117,7 +117,8 @@ class _StreamFile:
             return
         columns = [pa.array(self.t, type=pa.float64())]
         for name, fspec in self.spec.fields.items():
-            columns.append(to_arrow(np.stack(self.rows[name]), fspec))
+            rows = self.rows[name]
+            columns.append(to_arrow(rows if fspec.ragged else np.stack(rows), fspec))
         self.writer.write_batch(pa.record_batch(columns, schema=self.schema))
         self.file.flush()
         self.written += len(self.t)
@@ -151,7 +152,10 @@ def _validate_row(spec: StreamSpec, values: Mapping[str, ArrayLike]) -> dict[str
 def _cast(stream: str, name: str, spec: FieldSpec, value: ArrayLike) -> np.ndarray:
     """``value`` as spec.dtype; integer/bool targets must hold the value exactly (no truncation)."""
     arr = np.asarray(value)
-    if arr.shape != spec.shape:
+    if spec.ragged:
+        if arr.ndim != len(spec.shape) or arr.shape[1:] != spec.shape[1:]:
+            raise ValueError(f"stream {stream!r} field {name!r}: shape {arr.shape}, declared {spec.shape}")
+    elif arr.shape != spec.shape:
         raise ValueError(f"stream {stream!r} field {name!r}: shape {arr.shape}, declared {spec.shape}")
     if arr.dtype.kind not in "biuf":
         raise ValueError(f"stream {stream!r} field {name!r}: non-numeric dtype {arr.dtype}")

@@ -12,6 +12,7 @@ import pyarrow as pa
 import pytest
 
 from twin.recording import (
+    RAGGED,
     FieldSpec,
     Run,
     RunFormatError,
@@ -361,3 +362,37 @@ def test_sigkill_loses_at_most_the_flush_interval(tmp_path):
     np.testing.assert_allclose(data["xyz"][:, 2], 3 * data["t_s"])
     elapsed = killed_wall - run.metadata["start_wall_time_s"]
     assert elapsed - 1.0 <= data["t_s"][-1] <= elapsed
+
+
+def test_ragged_fields_round_trip_across_batches_with_empty_rows(tmp_path):
+    """Point clouds and encoded images: a varying leading dimension, empty rows included."""
+    spec = StreamSpec(
+        "surface",
+        30.0,
+        {
+            "points_m": FieldSpec("m", (RAGGED, 3), "float32"),
+            "jpeg": FieldSpec("byte", (RAGGED,), "uint8", kind="raw"),
+            "count": FieldSpec("1", (), "int32", kind="status"),
+        },
+    )
+    rng = np.random.default_rng(3)
+    rows = [
+        (rng.normal(size=(n, 3)).astype(np.float32), rng.integers(0, 256, m, dtype=np.uint8))
+        for n, m in ((5, 7), (0, 0), (1, 3), (400, 1000))
+    ]
+    with RunWriter(tmp_path / "run", {}, flush_interval_s=1 / 30) as w:  # a batch every ~2 rows
+        w.add_stream(spec)
+        for k, (points, jpeg) in enumerate(rows):
+            w.append("surface", k / 30, {"points_m": points, "jpeg": jpeg, "count": len(points)})
+        with pytest.raises(ValueError, match="shape"):
+            w.append("surface", 1.0, {"points_m": np.zeros((2, 2)), "jpeg": np.zeros(1), "count": 0})
+    data = open_run(tmp_path / "run").stream("surface")
+    assert len(data) == len(rows)
+    for k, (points, jpeg) in enumerate(rows):
+        np.testing.assert_array_equal(data["points_m"][k], points)
+        assert data["points_m"][k].shape == (len(points), 3)
+        np.testing.assert_array_equal(data["jpeg"][k], jpeg)
+        assert data["jpeg"][k].dtype == np.uint8
+    np.testing.assert_array_equal(data["count"], [5, 0, 1, 400])
+    with pytest.raises(ValueError, match="ragged"):
+        FieldSpec("m", (3, RAGGED))

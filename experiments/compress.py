@@ -152,10 +152,12 @@ def run_compress(
     profile: CompressProfile | None = None,
     progress: Callable[[float], None] | None = None,
     argv: list[str] | None = None,
+    stereo_box: tuple[int, int, int, int] | None = None,
 ) -> RunOutcome:
     """The compress procedure on any backend, recorded to run_dir (what `twin run compress` does).
 
     `object_name` is what is in the hand: the sim knows it, on hardware it is the researcher's word.
+    `stereo_box`: where the backend has cameras, the object's box on the first frame (see run_experiment).
     """
     from twin.session import run_experiment
 
@@ -169,4 +171,5 @@ def run_compress(
         experiment={"name": "compress", "object": object_name, "profile": profile.to_json()},
         progress=progress,
         argv=argv,
+        stereo_box=stereo_box,
     )

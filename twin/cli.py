@@ -56,6 +56,20 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
     c.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    c.add_argument(
+        "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
+    )
+    c.add_argument(
+        "--stereo-calibration",
+        type=Path,
+        metavar="FILE",
+        help="cameras: calibration file (`twin calibrate cameras`; default: sim truth, rig.toml on hardware)",
+    )
+    c.add_argument(
+        "--bbox",
+        metavar="X,Y,W,H",
+        help="cameras: the object's box on the first frame, rectified left pixels (sim default: the foam's)",
+    )
     _add_foam_overrides(c)
 
     p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
@@ -137,12 +151,21 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
 
     foam = _foam_from_args(args)
     run_dir = args.out or default_run_dir("compress", foam.name)
+    box = None
+    if (args.bbox is not None or args.stereo_calibration is not None) and not args.cameras:
+        raise ConfigError("--bbox and --stereo-calibration need --cameras")
+    if args.bbox is not None:
+        from twin.vision.pipeline import parse_box
+
+        box = parse_box(args.bbox)
     if args.backend == "sim":
         if args.hand or args.rig:
             raise ConfigError("--hand and --rig need --backend hardware")
         from twin.sim.backend import SimBackend
 
-        backend = SimBackend(foam, seed=args.seed)
+        backend = SimBackend(
+            foam, seed=args.seed, stereo=args.cameras, stereo_calibration_file=args.stereo_calibration
+        )
     else:
         from hardware.backend import HardwareBackend
         from hardware.rig_config import RigConfig, load_rig
@@ -150,12 +173,23 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
         rig = load_rig(args.rig) if args.rig else RigConfig()
         if args.hand:
             rig = rig.with_hand_port(args.hand)
+        if args.stereo_calibration is not None:
+            raise ConfigError("--stereo-calibration is for the sim; on hardware set calibration in [stereo]")
         backend = HardwareBackend(rig)
+        if args.cameras and backend.stereo is None:
+            raise ConfigError("--cameras: the rig has no cameras (add a [stereo] section to rig.toml)")
+        if not args.cameras:
+            backend.stereo = None  # cameras configured but not asked for: the run leaves them closed
     outcome = _with_progress(
         args.duration,
         not args.no_progress,
         lambda progress: run_compress(
-            backend, run_dir, duration_s=args.duration, object_name=foam.name, progress=progress
+            backend,
+            run_dir,
+            duration_s=args.duration,
+            object_name=foam.name,
+            progress=progress,
+            stereo_box=box,
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")

@@ -7,10 +7,13 @@ latency has already happened on the wire. The rig imports no backend.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import math
 import tempfile
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -19,12 +22,20 @@ import numpy as np
 
 from twin import units
 from twin.interface.backend import Backend
-from twin.interface.devices import FINGER_LABELS, N_TAXELS, HandCommand, HandReading, TactileReading
+from twin.interface.devices import (
+    FINGER_LABELS,
+    N_TAXELS,
+    HandCommand,
+    HandReading,
+    StereoFrame,
+    TactileReading,
+)
 from twin.interface.errors import DeviceError
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
+from twin.vision.pipeline import StereoPipeline, SurfaceFrame, stereo_stream_spec
 
 
 class Controller(Protocol):
@@ -142,8 +153,13 @@ class Rig:
         phases: tuple[str, ...] = ("idle",),
         safety: SafetyLayer | None = None,
         tactile_calibration: TaxelCalibration | None = None,
+        stereo_pipeline: StereoPipeline | None = None,
     ) -> None:
         self.backend = backend
+        if stereo_pipeline is not None and backend.stereo is None:
+            raise ValueError("a stereo pipeline needs a backend with a stereo camera")
+        self.stereo_pipeline = stereo_pipeline
+        """Processes every stereo pair (reconstruction + tactile fill-in); None: cameras not sampled."""
         if backend.tactile is not None and tactile_calibration is None:
             with tempfile.TemporaryDirectory() as tmp:  # the backend's files, read as any run reads them
                 tactile_calibration = load_calibration(backend.write_calibration(Path(tmp)))
@@ -158,6 +174,8 @@ class Rig:
         self._order = 0
         self.samples: dict[str, int] = {}
         self.stop_reason: str | None = None
+        self._vision: ThreadPoolExecutor | None = None
+        self._stereo_jobs: deque[tuple[StereoFrame, Future[SurfaceFrame]]] = deque()
         hand_spec = backend.hand.spec
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:
@@ -167,6 +185,8 @@ class Rig:
                 writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
             if backend.tactile is not None:
                 writer.add_stream(tactile_stream_spec(backend.tactile.spec.rate_hz))
+            if stereo_pipeline is not None:
+                writer.add_stream(stereo_stream_spec(backend.stereo.spec.rate_hz))
 
     def _push(self, t_s: float, kind: str, payload: object = None) -> None:
         self._order += 1
@@ -193,6 +213,12 @@ class Rig:
             tactile_latency = tactile.spec.latency_s if self.backend.is_simulated else 0.0
             for k in range(n_tactile + 1):
                 self._push(k * tactile.spec.period_s, "sample_tactile")
+        stereo = self.backend.stereo if self.stereo_pipeline is not None else None
+        if stereo is not None:
+            n_stereo = math.floor(duration_s * stereo.spec.rate_hz + 1e-9)
+            stereo_latency = stereo.spec.latency_s if self.backend.is_simulated else 0.0
+            for k in range(n_stereo + 1):
+                self._push(k * stereo.spec.period_s, "sample_stereo")
         if self.scene_logger is not None:
             n_scene = math.floor(duration_s * self.scene_rate_hz + 1e-9)
             for k in range(n_scene + 1):
@@ -216,12 +242,24 @@ class Rig:
                         self._push(max(scan.t_s + tactile_latency, event.t_s), "deliver_tactile", scan)
                 elif event.kind == "deliver_tactile":
                     self._deliver_tactile(event.payload)
+                elif event.kind == "sample_stereo":
+                    frame = stereo.read()
+                    self._push(max(frame.t_s + stereo_latency, event.t_s), "deliver_stereo", frame)
+                elif event.kind == "deliver_stereo":
+                    self._deliver_stereo(event.payload)
                 elif event.kind == "scene":
                     self.scene_logger(event.t_s)
+            self._record_stereo(wait=True)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
             self.stop_reason = f"{type(exc).__name__}: {exc}"
             self._safe_stop()
+            with contextlib.suppress(Exception):  # keep what the vision worker finished; report exc
+                self._record_stereo(wait=False)
             raise
+        finally:
+            if self._vision is not None:
+                self._vision.shutdown(wait=True, cancel_futures=True)
+                self._vision = None
         return RigResult(dict(self.samples), controller.phase, duration_s)
 
     def _safe_stop(self) -> None:
@@ -248,6 +286,8 @@ class Rig:
             **physical,
         }
         self._record("hand", reading.t_s, row)
+        if self.stereo_pipeline is not None:
+            self.stereo_pipeline.observe_hand(reading)
         if truth is not None:
             self._record("truth", reading.t_s, truth)
         self.safety.observe(reading)
@@ -296,9 +336,41 @@ class Rig:
                 "active_taxels": active_counts(pressure),
             },
         )
+        if self.stereo_pipeline is not None:
+            self.stereo_pipeline.observe_tactile(pressure)
         log_tactile = getattr(self.viewer, "log_tactile", None)
         if log_tactile is not None:
             log_tactile(scan.t_s, pressure, forces)
+
+    def _deliver_stereo(self, frame: StereoFrame) -> None:
+        """Hand the pair to the vision worker (it runs beside the physics); record what it finished."""
+        pipeline = self.stereo_pipeline
+        if self._vision is None:
+            self._vision = ThreadPoolExecutor(1, thread_name_prefix="vision")
+        self._record_stereo(wait=False)
+        job = self._vision.submit(pipeline.process, frame, pipeline.tactile_points())
+        self._stereo_jobs.append((frame, job))
+
+    def _record_stereo(self, wait: bool) -> None:
+        """Record finished frames in order (all of them when `wait`); a worker's error is raised here."""
+        while self._stereo_jobs and (wait or self._stereo_jobs[0][1].done()):
+            frame, job = self._stereo_jobs.popleft()
+            self._record_surface(frame, job.result())
+
+    def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
+        pipeline = self.stereo_pipeline
+        self._record("stereo", frame.t_s, surface.record(frame.left, frame.right, pipeline.jpeg_quality))
+        log_stereo = getattr(self.viewer, "log_stereo", None)
+        if log_stereo is not None:
+            log_stereo(
+                frame.t_s,
+                frame.left,
+                frame.right,
+                reconstruction=surface.reconstruction,
+                fused_points_hand=surface.fused.points_hand,
+                fused_triangles=surface.fused.triangles,
+                tactile_points_hand=surface.tactile_points_hand,
+            )
 
     def _record(self, stream: str, t_s: float, values: dict) -> None:
         self.samples[stream] = self.samples.get(stream, 0) + 1

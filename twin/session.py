@@ -23,6 +23,9 @@ from twin.recording import RunWriter
 from twin.rig import Rig, RigResult
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import load_calibration
+from twin.vision.calibration import StereoCalibration
+from twin.vision.pipeline import StereoPipeline
+from twin.vision.reconstruct import Rectifier
 
 RRD_NAME = "run.rrd"
 
@@ -85,8 +88,14 @@ def run_experiment(
     progress: Callable[[float], None] | None = None,
     argv: list[str] | None = None,
     safety: SafetyLayer | None = None,
+    stereo_box: tuple[int, int, int, int] | None = None,
 ) -> RunOutcome:
-    """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd."""
+    """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd.
+
+    With a stereo camera on the backend every pair is reconstructed and fused with the pads
+    (twin.vision.pipeline); `stereo_box` is the object's bounding box on the first frame (x, y, w, h
+    in the rectified left view), by default the one the backend suggests (the sim knows its foam).
+    """
     from twin.viz.rerun_log import RunRecording
 
     if not duration_s > 0:
@@ -112,9 +121,14 @@ def run_experiment(
                 calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
             )
             tactile_calibration = load_calibration(files) if backend.tactile is not None else None
+            stereo_pipeline = _stereo_pipeline(backend, files, stereo_box)
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
             try:
                 scene_logger = _scene_logger(backend, recording)
+                if stereo_pipeline is not None:
+                    log_setup = getattr(recording, "log_stereo_setup", None)
+                    if log_setup is not None:
+                        log_setup(stereo_pipeline.calibration, backend.hand_pose_in_world())
                 rig = Rig(
                     backend,
                     writer,
@@ -123,6 +137,7 @@ def run_experiment(
                     phases=phases,
                     safety=safety,
                     tactile_calibration=tactile_calibration,
+                    stereo_pipeline=stereo_pipeline,
                 )
                 result = rig.run(controller, duration_s, progress)
                 writer.update_metadata(final_phase=result.final_phase)
@@ -132,6 +147,35 @@ def run_experiment(
         return RunOutcome(run_dir, rrd_path, result, "complete")
     finally:
         backend.disconnect()
+
+
+def _stereo_pipeline(
+    backend: Backend, files: dict[str, Path], box: tuple[int, int, int, int] | None
+) -> StereoPipeline | None:
+    """The run's vision pipeline from the calibration copied into the run, or None without cameras."""
+    if backend.stereo is None:
+        return None
+    path = files.get("stereo_calibration")
+    if path is None:
+        raise ConfigError(
+            "the stereo cameras need a calibration file: run `twin calibrate cameras` and name it "
+            "(--stereo-calibration, or calibration in rig.toml's [stereo])"
+        )
+    calibration = StereoCalibration.load(path)
+    spec = backend.stereo.spec.channels["left"]
+    height, width = spec.shape[:2]
+    if tuple(calibration.left.image_size) != (width, height):
+        raise ConfigError(
+            f"{path}: calibrated for {calibration.left.image_size[0]}x{calibration.left.image_size[1]} "
+            f"images, the cameras deliver {width}x{height}"
+        )
+    if box is None:
+        box = backend.object_box(Rectifier(calibration))
+    if box is None:
+        raise ConfigError(
+            "the stereo cameras need the object's bounding box on the first frame: --bbox x,y,w,h"
+        )
+    return StereoPipeline(calibration, box)
 
 
 def _scene_logger(backend: Backend, recording: Any) -> Callable[[float], None] | None:

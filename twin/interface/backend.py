@@ -82,6 +82,15 @@ class Backend(ABC):
         """(MjModel, MjData) to draw in 3-D, where the backend has a MuJoCo world; None otherwise."""
         return None
 
+    def object_box(self, rectifier: Any) -> tuple[int, int, int, int] | None:
+        """The object's bounding box (x, y, w, h) in the rectified left view, where the backend knows
+        it (the sim projects its foam); None: the user draws it (`--bbox`)."""
+        return None
+
+    def hand_pose_in_world(self) -> np.ndarray | None:
+        """4x4 pose of the hand frame (palm) in the 3-D scene's world frame; None without a scene."""
+        return None
+
     def safety_limits(self) -> Any:
         """The rig's SafetyLimits where it declares its own (hardware: rig.toml); None: the defaults."""
         return None

@@ -13,14 +13,18 @@ from twin.interface.backend import Backend, Clock
 from twin.interface.hand_spec import HandConfig
 from twin.interface.stereo_spec import StereoConfig
 from twin.interface.tactile_spec import TactileConfig
-from twin.sim.cameras import SimStereo
+from twin.kinematics import HAND_FRAME_BODY
+from twin.sim.cameras import LEFT_CAMERA, SimStereo, camera_pose_cv
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
 from twin.sim.tactile import SimTactile, SimTactileSensor
 from twin.sim.world import SimWorld
+from twin.vision.calibration import StereoCalibration
+from twin.vision.reconstruct import Box, Rectifier
 
 FINGERS = (1, 2, 3)
+STEREO_CALIBRATION_FILE = "stereo_calibration.json"
 
 
 class SimClock(Clock):
@@ -54,7 +58,11 @@ class SimBackend(Backend):
         stereo_config: StereoConfig | None = None,
         stereo: bool = False,
         stereo_render_native: bool = True,
+        stereo_calibration_file: Path | None = None,
     ) -> None:
+        if stereo_calibration_file is not None:
+            StereoCalibration.load(stereo_calibration_file)  # a bad file fails here, before any run
+        self.stereo_calibration_file = stereo_calibration_file
         self.foam = foam
         self.seed = seed
         self.world = SimWorld(build_model(foam, cameras=stereo))
@@ -123,11 +131,48 @@ class SimBackend(Backend):
                     total[k] += c.frame.reshape(3, 3).T @ wrench[:3]
         return np.linalg.norm(total, axis=1)
 
+    def object_box(self, rectifier: Rectifier, margin_px: int = 3) -> Box | None:
+        """The foam's bounding box in the rectified left view now: what a user would draw on the
+        first frame (None without foam or cameras)."""
+        if self.foam is None or self.stereo is None:
+            return None
+        m, d = self.world.model, self.world.data
+        mujoco.mj_forward(m, d)  # vertex positions of a world not stepped yet; time does not move
+        vertices = np.asarray(d.flexvert_xpos, dtype=float)
+        left_from_world = np.linalg.inv(camera_pose_cv(m, d, LEFT_CAMERA))
+        in_left = vertices @ left_from_world[:3, :3].T + left_from_world[:3, 3]
+        rect = in_left @ rectifier.rectified_from_left.T
+        uvw = np.column_stack([rect, np.ones(len(rect))]) @ rectifier.P1.T
+        uv = uvw[:, :2] / uvw[:, 2:]
+        (x0, y0), (x1, y1) = uv.min(axis=0) - margin_px, uv.max(axis=0) + margin_px
+        w, h = rectifier.image_size
+        x0, y0 = max(0, int(x0)), max(0, int(y0))
+        return x0, y0, min(w, int(np.ceil(x1))) - x0, min(h, int(np.ceil(y1))) - y0
+
+    def hand_pose_in_world(self) -> np.ndarray:
+        """4x4 pose of the palm body in the world (fixed: the hand is mounted)."""
+        m, d = self.world.model, self.world.data
+        mujoco.mj_kinematics(m, d)
+        palm = m.body(HAND_FRAME_BODY).id
+        pose = np.eye(4)
+        pose[:3, :3] = d.xmat[palm].reshape(3, 3)
+        pose[:3, 3] = d.xpos[palm]
+        return pose
+
     def write_calibration(self, directory: Path) -> dict[str, Path]:
-        """The simulated pads' calibration points and fitted look-up table (as a manufacturer's files)."""
-        if self.tactile is None:
-            return {}
-        return self.tactile.sensor.write_files(directory)
+        """The simulated pads' calibration points and fitted look-up table (as a manufacturer's files),
+        and the stereo calibration: the file given to the backend, else the twin's ground truth."""
+        files = {} if self.tactile is None else self.tactile.sensor.write_files(directory)
+        if self.stereo is not None:
+            directory.mkdir(parents=True, exist_ok=True)
+            path = directory / STEREO_CALIBRATION_FILE
+            if self.stereo_calibration_file is not None:
+                StereoCalibration.load(self.stereo_calibration_file).save(path)
+            else:
+                mujoco.mj_kinematics(self.world.model, self.world.data)  # camera poses before any step
+                self.stereo.calibration().save(path)
+            files["stereo_calibration"] = path
+        return files
 
     def scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The MuJoCo model and data, for 3-D logging."""

@@ -356,6 +356,7 @@ def reconstruct(
     outlier_factor: float = 3.0,
     max_edge_m: float = 0.008,
     mesh_stride: int = 1,
+    mesh: bool = True,
 ) -> Reconstruction:
     """The whole pipeline on one unrectified RGB pair.
 
@@ -363,6 +364,7 @@ def reconstruct(
     `matcher`: a cv2.StereoBM (build it once with `default_matcher(rectifier)` when calling per frame).
     `mesh_stride`: mesh only the points on every n-th row and column (n^2 fewer vertices, the mesh being
     the slowest stage); the triangles still index `points_hand`, which keeps every point.
+    `mesh`: False leaves `triangles` empty (for a caller that meshes a fused cloud itself).
     """
     if mesh_stride < 1:
         raise ValueError(f"mesh_stride must be >= 1, got {mesh_stride}")
@@ -389,9 +391,11 @@ def reconstruct(
     colors = left_rect[pixels[:, 0], pixels[:, 1]] if left_rect.ndim == 3 else None
     t4 = time.perf_counter()
     timings["cloud"] = 1e3 * (t4 - t3)
-    on_grid = np.flatnonzero((pixels[:, 0] % mesh_stride == 0) & (pixels[:, 1] % mesh_stride == 0))
-    uv = pixels[on_grid, ::-1].astype(np.float64)
-    triangles = on_grid[surface_mesh(uv, points[on_grid], max_edge_m * mesh_stride)]
+    triangles = np.zeros((0, 3), dtype=np.intp)
+    if mesh:
+        on_grid = np.flatnonzero((pixels[:, 0] % mesh_stride == 0) & (pixels[:, 1] % mesh_stride == 0))
+        uv = pixels[on_grid, ::-1].astype(np.float64)
+        triangles = on_grid[surface_mesh(uv, points[on_grid], max_edge_m * mesh_stride)]
     timings["mesh"] = 1e3 * (time.perf_counter() - t4)
     if colors is None:
         colors = np.repeat(left_rect[pixels[:, 0], pixels[:, 1]][:, None], 3, axis=1)

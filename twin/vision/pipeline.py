@@ -1,0 +1,202 @@
+"""The vision side of a run, backend-free: each stereo pair -> reconstruction -> tactile fill-in -> record.
+
+`StereoPipeline` keeps what lasts between frames: the rectification maps, the colour tracker learnt
+from the bounding box on the first frame, the block matcher, the hand's kinematics and clutch state
+(from every hand reading) and the latest tactile pressures (from every scan). `process` turns one
+pair into a `SurfaceFrame`: the fused cloud and mesh the run stores, with both images JPEG-encoded
+so a run can be reprocessed later.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from twin.interface.devices import HandReading, StereoFrame
+from twin.interface.errors import ConfigError
+from twin.kinematics import ClutchObserver, HandKinematics
+from twin.recording import RAGGED, FieldSpec, StreamSpec
+from twin.units import spread_counts_to_rad
+from twin.vision.calibration import StereoCalibration
+from twin.vision.fusion import FusedSurface, fuse, pressed_taxels
+from twin.vision.reconstruct import (
+    Box,
+    ObjectTracker,
+    Reconstruction,
+    Rectifier,
+    default_matcher,
+    reconstruct,
+)
+
+STAGES = ("rectify", "track", "disparity", "cloud", "fuse")
+"""Timed stages of one frame, in `process_ms` order (`fuse` includes the mesh)."""
+
+
+def stereo_stream_spec(rate_hz: float) -> StreamSpec:
+    """The recorded stereo stream: both frames (JPEG) and the fused surface in the hand frame."""
+    return StreamSpec(
+        name="stereo",
+        rate_hz=rate_hz,
+        description="Flea2 pair (JPEG, as delivered) and the fused surface (paper §4.2 + §5), hand frame",
+        fields={
+            "left_jpeg": FieldSpec(unit="byte", shape=(RAGGED,), dtype="uint8", kind="raw"),
+            "right_jpeg": FieldSpec(unit="byte", shape=(RAGGED,), dtype="uint8", kind="raw"),
+            "points_m": FieldSpec(
+                unit="m", shape=(RAGGED, 3), dtype="float32", description="fused cloud, hand frame"
+            ),
+            "point_source": FieldSpec(
+                unit="1", shape=(RAGGED,), dtype="uint8", kind="status", description="0 vision, 1 tactile"
+            ),
+            "triangles": FieldSpec(
+                unit="1", shape=(RAGGED, 3), dtype="int32", description="fused mesh, indices into points_m"
+            ),
+            "vision_points": FieldSpec(
+                unit="1", dtype="int32", kind="status", description="reconstructed points before thinning"
+            ),
+            "box": FieldSpec(
+                unit="px", shape=(4,), dtype="int32", kind="status", description="tracker window x, y, w, h"
+            ),
+            "process_ms": FieldSpec(
+                unit="ms", shape=(len(STAGES),), dtype="float32", kind="status", description=", ".join(STAGES)
+            ),
+        },
+    )
+
+
+@dataclass
+class SurfaceFrame:
+    """One processed pair: the reconstruction, the tactile points and the fused surface."""
+
+    t_s: float
+    reconstruction: Reconstruction
+    tactile_points_hand: NDArray[np.float64]
+    fused: FusedSurface
+    process_ms: dict[str, float]
+
+    def record(self, left: NDArray[np.uint8], right: NDArray[np.uint8], jpeg_quality: int) -> dict:
+        """The stereo stream's row (images JPEG-encoded)."""
+        r = self.reconstruction
+        return {
+            "left_jpeg": encode_jpeg(left, jpeg_quality),
+            "right_jpeg": encode_jpeg(right, jpeg_quality),
+            "points_m": self.fused.points_hand,
+            "point_source": self.fused.source,
+            "triangles": self.fused.triangles,
+            "vision_points": len(r.points_hand),
+            "box": np.asarray(r.box if r.box is not None else (0, 0, 0, 0), dtype=np.int32),
+            "process_ms": np.array([self.process_ms.get(s, np.nan) for s in STAGES], dtype=np.float32),
+        }
+
+
+def encode_jpeg(rgb: NDArray[np.uint8], quality: int) -> NDArray[np.uint8]:
+    """An RGB frame as JPEG bytes (what the recording keeps of each camera frame)."""
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return buf.reshape(-1)
+
+
+def decode_jpeg(data: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """The RGB frame back from its recorded JPEG bytes."""
+    bgr = cv2.imdecode(np.asarray(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise ValueError("not a JPEG image")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def parse_box(text: str) -> Box:
+    """'x,y,w,h' (pixels of the rectified left view) -> a Box; ConfigError on anything else."""
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise ConfigError(f"--bbox {text!r}: expected x,y,w,h in pixels, e.g. 120,80,70,90")
+    if values[2] <= 0 or values[3] <= 0:
+        raise ConfigError(f"--bbox {text!r}: the bounding box is empty (width and height must be > 0)")
+    return values[0], values[1], values[2], values[3]
+
+
+class StereoPipeline:
+    """Reconstruction + tactile fill-in of every stereo pair of a run (sim or hardware alike)."""
+
+    def __init__(
+        self,
+        calibration: StereoCalibration,
+        box: Box,
+        *,
+        mesh_stride: int = 2,
+        jpeg_quality: int = 90,
+    ) -> None:
+        if mesh_stride < 1:
+            raise ConfigError(f"mesh_stride must be >= 1, got {mesh_stride}")
+        if not 1 <= jpeg_quality <= 100:
+            raise ConfigError(f"jpeg_quality must be in 1-100, got {jpeg_quality}")
+        self.calibration = calibration
+        self.rectifier = Rectifier(calibration)
+        width, height = self.rectifier.image_size
+        x, y, w, h = box
+        if w <= 0 or h <= 0:
+            raise ConfigError(f"bounding box {box} is empty (width and height must be > 0)")
+        if x < 0 or y < 0 or x + w > width or y + h > height:
+            raise ConfigError(f"bounding box {box} (x, y, w, h) is not inside the {width}x{height} image")
+        self.box = box
+        self.mesh_stride = mesh_stride
+        self.jpeg_quality = jpeg_quality
+        self.matcher = default_matcher(self.rectifier)
+        self.tracker: ObjectTracker | None = None
+        self.kinematics = HandKinematics()
+        self.clutch = ClutchObserver()
+        self._pressure_kpa: NDArray[np.float64] | None = None
+        self.image_from_hand = self.rectifier.P1 @ np.linalg.inv(self.rectifier.hand_from_rectified)
+        """3x4: hand-frame points -> rectified left pixels."""
+
+    def observe_hand(self, reading: HandReading) -> None:
+        """Follow the hand's pose (link angles through the clutch observer)."""
+        links = self.clutch.update(reading.position_counts, reading.strain_counts)
+        self.kinematics.set_angles(links, float(spread_counts_to_rad(reading.position_counts[3])))
+
+    def observe_tactile(self, pressure_kpa: NDArray[np.float64]) -> None:
+        """Keep the latest scan's pressures (eq. 5) for the next frame's fill-in."""
+        self._pressure_kpa = np.asarray(pressure_kpa, dtype=np.float64)
+
+    def tactile_points(self) -> NDArray[np.float64]:
+        """(k, 3) hand-frame centres of the taxels pressed in the latest scan, at the latest hand pose."""
+        if self._pressure_kpa is None:
+            return np.zeros((0, 3))
+        taxels, _ = self.kinematics.taxels()
+        return pressed_taxels(self._pressure_kpa, taxels)
+
+    def process(self, frame: StereoFrame, tactile_points: NDArray[np.float64] | None = None) -> SurfaceFrame:
+        """Reconstruct one pair and fill it in with the pressed taxels.
+
+        `tactile_points`: the fill-in taken when the frame was delivered (`tactile_points()`), so that
+        `process` may run on a worker thread while the hand and pads move on; None takes them now.
+        """
+        if self.tracker is None:  # the first frame: learn the object's colour inside the box
+            left_rect = self.rectifier.remap(frame.left, "left")
+            try:
+                self.tracker = ObjectTracker(left_rect, self.box)
+            except ValueError as exc:
+                raise ConfigError(f"bounding box on the first frame: {exc}") from None
+        recon = reconstruct(
+            frame.left, frame.right, self.rectifier, self.tracker, matcher=self.matcher, mesh=False
+        )
+        t0 = time.perf_counter()
+        pixels = recon.pixels
+        on_grid = (pixels[:, 0] % self.mesh_stride == 0) & (pixels[:, 1] % self.mesh_stride == 0)
+        tactile = self.tactile_points() if tactile_points is None else np.asarray(tactile_points)
+        fused = fuse(
+            recon.points_hand[on_grid],
+            tactile,
+            self.image_from_hand,
+            max_edge_m=0.008 * self.mesh_stride,
+        )
+        timings = dict(recon.timings_ms)
+        timings.pop("mesh", None)
+        timings["fuse"] = 1e3 * (time.perf_counter() - t0)
+        return SurfaceFrame(frame.t_s, recon, tactile, fused, timings)

@@ -100,6 +100,13 @@ def run_experiment(
 
     if not duration_s > 0:
         raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
+    if stereo_box is not None and backend.stereo is not None:
+        height, width = backend.stereo.spec.channels["left"].shape[:2]
+        x, y, w, h = stereo_box
+        if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > width or y + h > height:
+            raise ConfigError(
+                f"--bbox {x},{y},{w},{h}: not a non-empty box inside the {width}x{height} image"
+            )
     check_output_dir(run_dir)
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())

@@ -1,0 +1,92 @@
+"""Runs with cameras end to end through the CLI: the stereo stream, the fused surface in the hand
+frame, the tactile fill-in once the fingers close, and bad vision input refused before anything runs."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twin.recording import open_run
+from twin.vision.fusion import TACTILE, VISION
+from twin.vision.pipeline import STAGES, decode_jpeg
+
+TWIN = [sys.executable, "-m", "twin.cli"]
+
+
+def twin(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    return subprocess.run([*TWIN, *args], capture_output=True, text=True, env=env, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def camera_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cameras") / "run"
+    result = twin("run", "compress", "--cameras", "--duration", "4", "--out", str(out), "--no-progress")
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+def test_stereo_stream_at_30_fps_with_frames_and_surface(camera_run: Path):
+    run = open_run(camera_run)
+    stereo = run.stream("stereo")
+    assert len(stereo) == 121 and stereo.measured_rate_hz() == pytest.approx(30.0, rel=0.01)
+    left = decode_jpeg(stereo["left_jpeg"][0])
+    assert left.shape == (240, 320, 3) and left.dtype == np.uint8
+    info = json.loads((camera_run / "run.json").read_text())
+    files = info["metadata"]["calibration_files"]
+    assert files["stereo_calibration"] == "calibration/stereo_calibration.json"
+    assert stereo["process_ms"].shape == (121, len(STAGES))
+    for k in range(len(stereo)):
+        points, source, triangles = stereo["points_m"][k], stereo["point_source"][k], stereo["triangles"][k]
+        assert len(points) == len(source) and (triangles < len(points)).all()
+        vision = points[source == VISION]
+        assert len(vision) > 100
+        # The foam (60 x 60 x 70 mm) sits on the palm (z = 75 mm): the cloud's middle is on it.
+        lo, hi = np.percentile(vision, 25, axis=0), np.percentile(vision, 75, axis=0)
+        assert (lo > [-0.045, -0.045, 0.07]).all() and (hi < [0.045, 0.045, 0.16]).all(), (k, lo, hi)
+
+
+def test_tactile_points_fill_in_once_the_fingers_grasp(camera_run: Path):
+    run = open_run(camera_run)
+    stereo, tactile = run.stream("stereo"), run.stream("tactile")
+    n_tactile = np.array([(s == TACTILE).sum() for s in stereo["point_source"]])
+    assert n_tactile[:15].sum() == 0  # open hand: nothing pressed (the palm under the foam is, below)
+    grasped = stereo.t_s > 3.0
+    assert (n_tactile[grasped] >= 4).all()
+    assert tactile["active_taxels"][-1][:3].min() >= 1  # every fingertip pad is pressed
+    last = stereo["points_m"][-1][stereo["point_source"][-1] == TACTILE]
+    # Finger and palm contacts lie around the foam: its footprint and height, with a finger's margin.
+    assert (np.abs(last[:, :2]) < 0.03 + 0.012).all()
+    assert ((last[:, 2] > 0.070) & (last[:, 2] < 0.150)).all()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--cameras", "--bbox", "10,10,0,5"], "empty"),
+        (["--cameras", "--bbox", "10,10,5"], "expected x,y,w,h"),
+        (["--cameras", "--bbox", "300,200,60,60"], "inside the 320x240 image"),
+        (["--bbox", "10,10,20,20"], "need --cameras"),
+        (["--cameras", "--stereo-calibration", "/nonexistent/stereo.json"], "/nonexistent/stereo.json"),
+    ],
+)
+def test_bad_vision_input_one_line_nothing_written(args, message, tmp_path: Path):
+    out = tmp_path / "run"
+    result = twin("run", "compress", *args, "--out", str(out), "--no-progress")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twin: error:") and message in lines[0], result.stderr
+    assert not out.exists()
+
+
+def test_corrupt_calibration_file_names_file_and_line(tmp_path: Path):
+    bad = tmp_path / "stereo.json"
+    bad.write_text('{"format": "barrett-twin stereo calibration v1",\n  "left": [1, 2,,]}\n')
+    out = tmp_path / "run"
+    result = twin("run", "compress", "--cameras", "--stereo-calibration", str(bad), "--out", str(out))
+    assert result.returncode == 2 and f"{bad}:2:" in result.stderr, result.stderr
+    assert not out.exists()

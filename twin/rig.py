@@ -358,8 +358,7 @@ class Rig:
             self._record_surface(frame, job.result())
 
     def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
-        pipeline = self.stereo_pipeline
-        self._record("stereo", frame.t_s, surface.record(frame.left, frame.right, pipeline.jpeg_quality))
+        self._record("stereo", frame.t_s, surface.record())
         log_stereo = getattr(self.viewer, "log_stereo", None)
         if log_stereo is not None:
             log_stereo(

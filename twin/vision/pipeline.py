@@ -76,13 +76,16 @@ class SurfaceFrame:
     tactile_points_hand: NDArray[np.float64]
     fused: FusedSurface
     process_ms: dict[str, float]
+    left_jpeg: NDArray[np.uint8]
+    right_jpeg: NDArray[np.uint8]
+    """Both frames as delivered, JPEG-encoded (what the run keeps of them)."""
 
-    def record(self, left: NDArray[np.uint8], right: NDArray[np.uint8], jpeg_quality: int) -> dict:
-        """The stereo stream's row (images JPEG-encoded)."""
+    def record(self) -> dict:
+        """The stereo stream's row."""
         r = self.reconstruction
         return {
-            "left_jpeg": encode_jpeg(left, jpeg_quality),
-            "right_jpeg": encode_jpeg(right, jpeg_quality),
+            "left_jpeg": self.left_jpeg,
+            "right_jpeg": self.right_jpeg,
             "points_m": self.fused.points_hand,
             "point_source": self.fused.source,
             "triangles": self.fused.triangles,
@@ -199,4 +202,6 @@ class StereoPipeline:
         timings = dict(recon.timings_ms)
         timings.pop("mesh", None)
         timings["fuse"] = 1e3 * (time.perf_counter() - t0)
-        return SurfaceFrame(frame.t_s, recon, tactile, fused, timings)
+        left_jpeg = encode_jpeg(frame.left, self.jpeg_quality)
+        right_jpeg = encode_jpeg(frame.right, self.jpeg_quality)
+        return SurfaceFrame(frame.t_s, recon, tactile, fused, timings, left_jpeg, right_jpeg)

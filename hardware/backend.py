@@ -1,4 +1,4 @@
-"""The hardware backend: the real BH8 (and later the tactile pads and cameras) on wall time.
+"""The hardware backend: the real BH8, the tactile pads and the stereo cameras on wall time.
 
 Drivers live beside this module and never import the simulator. A device the rig does not
 configure fails to connect with DeviceNotConfiguredError, before any run directory is written.
@@ -12,14 +12,16 @@ from pathlib import Path
 from typing import Any
 
 from hardware.bh262.hand import BH8SerialHand
+from hardware.cameras.driver import StereoCapture
 from hardware.pps.driver import PPSTactile
-from hardware.rig_config import RigConfig
+from hardware.rig_config import STEREO_CALIBRATION, RigConfig
 from twin.interface.backend import Backend, Clock
 from twin.interface.devices import Hand, HandCommand, HandReading
 from twin.interface.errors import DeviceError, DeviceNotConfiguredError
 from twin.interface.hand_spec import HandConfig, hand_device_spec
 from twin.interface.specs import DeviceSpec
 from twin.safety import SafetyLimits
+from twin.vision.calibration import StereoCalibration
 
 
 class WallClock(Clock):
@@ -96,6 +98,10 @@ class HardwareBackend(Backend):
                 self.config.tactile, tactile.url, self._clock, baud=tactile.baud, timeout_s=tactile.timeout_s
             )
         )
+        stereo_file = self.config.calibration.get(STEREO_CALIBRATION)
+        if stereo_file is not None:  # a missing or bad file fails here, before anything is opened
+            StereoCalibration.load(stereo_file)
+        self.stereo = None if self.config.stereo is None else StereoCapture(self.config.stereo, self._clock)
         port = self.config.hand_port
         if port is None:
             self.hand: Hand = UnconfiguredHand(self.config.hand)
@@ -113,6 +119,10 @@ class HardwareBackend(Backend):
     def clock(self) -> Clock:
         """Wall clock."""
         return self._clock
+
+    def object_box(self, rectifier: object) -> tuple[int, int, int, int] | None:
+        """rig.toml's [stereo].bbox (None: `--bbox` must give it)."""
+        return self.config.stereo_bbox
 
     def safety_limits(self) -> SafetyLimits:
         """The limits of the rig file (the datasheet's when it names none)."""
@@ -134,13 +144,17 @@ class HardwareBackend(Backend):
             meta["hand_driver"] = self.hand.metadata()
         if self.tactile is not None:
             meta["tactile_driver"] = self.tactile.metadata()
+        if isinstance(self.stereo, StereoCapture):
+            meta["stereo_driver"] = self.stereo.metadata()
         return meta
 
     def diagnostics(self) -> dict[str, Any]:
-        """Cycles the hand driver had to recover and the tactile link's counters."""
+        """Cycles the hand driver had to recover, the tactile link's and the cameras' counters."""
         out: dict[str, Any] = {}
         if isinstance(self.hand, BH8SerialHand):
             out["hand_recoveries"] = list(self.hand.recoveries)
         if self.tactile is not None:
             out["tactile_link"] = self.tactile.diagnostics()
+        if isinstance(self.stereo, StereoCapture):
+            out["stereo_capture"] = self.stereo.diagnostics()
         return out

@@ -22,6 +22,14 @@ with one line naming the file and the key, before anything is opened or written.
     baud = 921600
     rate_hz = 30.0
 
+    [stereo]                  # the Flea2 pair on two cv2.VideoCapture sources (hardware/cameras/driver.py)
+    left = 0                  # device index, /dev path, URL, video file or image pattern
+    right = 1
+    backend = "any"           # any, firewire, v4l2, gstreamer, ffmpeg, images (as this OpenCV has)
+    rate_hz = 30.0
+    calibration = "calibration/stereo_calibration.json"   # relative to this file (optional)
+    bbox = [112, 76, 105, 88] # the object's box on the first frame, rectified left pixels (optional)
+
     [calibration]             # paths relative to this file
     tactile_table = "calibration/tactile_table.csv"    # or tactile_points = "...points.csv"
 """
@@ -34,10 +42,12 @@ from pathlib import Path
 from typing import Any
 
 from hardware.bh262.driver import PortSettings
+from hardware.cameras.driver import BACKENDS, StereoCaptureConfig
 from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
 from twin.interface.tactile_spec import TactileConfig
 from twin.safety import SafetyLimits
+from twin.vision.calibration import StereoCalibration, StereoCalibrationError
 
 _HAND_KEYS = {
     "port": str,
@@ -52,6 +62,23 @@ _HAND_KEYS = {
     "lcvc": int,
 }
 _TACTILE_KEYS = {"port": str, "baud": int, "rate_hz": float, "timeout_s": float}
+_STEREO_KEYS = {
+    "left": object,  # int or str: checked apart
+    "right": object,
+    "backend": str,
+    "rate_hz": float,
+    "latency_s": float,
+    "native_width": int,
+    "native_height": int,
+    "width": int,
+    "height": int,
+    "timeout_s": float,
+    "resync": bool,
+    "calibration": str,
+    "bbox": list,
+}
+STEREO_CALIBRATION = "stereo_calibration"
+"""The key under which [stereo].calibration joins RigConfig.calibration (and the run's calibration/)."""
 CALIBRATION_FILES = {
     "tactile_table": "per-taxel lines (taxel,a_kpa_per_count,b_kpa): what eq. 5 loads",
     "tactile_points": "7-point calibration data (taxel,pressure_kpa,count): fitted when there is no table",
@@ -92,6 +119,10 @@ class RigConfig:
     hand: HandConfig = field(default_factory=HandConfig)
     tactile_port: TactilePortConfig | None = None
     tactile: TactileConfig = field(default_factory=TactileConfig)
+    stereo: StereoCaptureConfig | None = None
+    """The stereo pair (None: no cameras); its calibration file is calibration["stereo_calibration"]."""
+    stereo_bbox: tuple[int, int, int, int] | None = None
+    """[stereo].bbox: the object's box on the first frame (x, y, w, h), the default of `--bbox`."""
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     calibration: dict[str, Path] = field(default_factory=dict)
     source: Path | None = None
@@ -118,6 +149,7 @@ class RigConfig:
                 "watchdog_cycles": hp.watchdog_cycles,
             },
             "tactile_port": vars(self.tactile_port) if self.tactile_port else None,
+            "stereo": vars(self.stereo) if self.stereo else None,
             "limits": vars(self.limits),
             "calibration": {k: str(v) for k, v in self.calibration.items()},
         }
@@ -158,11 +190,11 @@ def load_rig(path: Path | str) -> RigConfig:
         raise ConfigError(f"--rig {path}: cannot read ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"--rig {path}: not valid TOML ({exc})") from None
-    unknown = set(data) - {"hand", "tactile", "limits", "calibration"}
+    unknown = set(data) - {"hand", "tactile", "stereo", "limits", "calibration"}
     if unknown:
         raise ConfigError(
             f"{path}: unknown table(s) {', '.join(sorted(unknown))}; "
-            "known: hand, tactile, limits, calibration"
+            "known: hand, tactile, stereo, limits, calibration"
         )
     hand = _typed(f"{path}: [hand]", data.get("hand", {}), _HAND_KEYS)
     limits = _typed(f"{path}: [limits]", data.get("limits", {}), _LIMIT_KEYS)
@@ -180,6 +212,7 @@ def load_rig(path: Path | str) -> RigConfig:
     for key, file in files.items():
         if not file.is_file():
             raise ConfigError(f"{path}: [calibration].{key}: no such file {file}")
+    stereo, stereo_bbox = _stereo(path, data["stereo"], files) if "stereo" in data else (None, None)
     for key in ("finger_counts", "spread_counts"):
         if key in limits:
             pair = limits[key]
@@ -219,10 +252,48 @@ def load_rig(path: Path | str) -> RigConfig:
         hand=hand_config,
         tactile_port=tactile_port,
         tactile=tactile_config,
+        stereo=stereo,
+        stereo_bbox=stereo_bbox,
         limits=safety,
         calibration=files,
         source=path,
     )
+
+
+def _stereo(
+    path: Path, table: Any, files: dict[str, Path]
+) -> tuple[StereoCaptureConfig, tuple[int, int, int, int] | None]:
+    """The [stereo] table as the driver's config and the optional box; its calibration file (checked)
+    joins `files`."""
+    where = f"{path}: [stereo]"
+    stereo = _typed(where, table, _STEREO_KEYS)
+    for side in ("left", "right"):
+        if side not in stereo:
+            raise ConfigError(f"{where}.{side}: missing (a device index, path, URL or file pattern)")
+        value = stereo[side]
+        if isinstance(value, bool) or not isinstance(value, int | str):
+            raise ConfigError(f"{where}.{side}: expected a device index or a string, got {value!r}")
+    if stereo.get("backend", "any") not in BACKENDS:
+        raise ConfigError(f"{where}.backend: {stereo['backend']!r} is not one of {', '.join(BACKENDS)}")
+    bbox = stereo.pop("bbox", None)
+    if bbox is not None:
+        if len(bbox) != 4 or not all(isinstance(v, int) and not isinstance(v, bool) for v in bbox):
+            raise ConfigError(f"{where}.bbox: expected [x, y, w, h] in pixels, got {bbox!r}")
+        if bbox[2] <= 0 or bbox[3] <= 0:
+            raise ConfigError(f"{where}.bbox: {bbox} is empty (width and height must be > 0)")
+        bbox = tuple(bbox)
+    calibration = stereo.pop("calibration", None)
+    if calibration is not None:
+        file = path.parent / calibration
+        try:
+            StereoCalibration.load(file)  # one line naming the file and what is wrong with it
+        except StereoCalibrationError as exc:
+            raise StereoCalibrationError(f"{where}.calibration: {exc}") from None
+        files[STEREO_CALIBRATION] = file
+    try:
+        return StereoCaptureConfig(**stereo), bbox
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def rig_toml(
@@ -232,6 +303,11 @@ def rig_toml(
     switch_baud: int | None = 38400,
     tactile_url: str | None = None,
     tactile_table: str | None = None,
+    stereo: tuple[str, str] | None = None,
+    stereo_backend: str = "ffmpeg",
+    stereo_rate_hz: float = 30.0,
+    stereo_calibration: str | None = None,
+    stereo_bbox: tuple[int, int, int, int] | None = None,
 ) -> str:
     """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes."""
     text = (
@@ -245,6 +321,15 @@ def rig_toml(
     )
     if tactile_url:
         text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n'
+    if stereo:
+        text += (
+            f'\n[stereo]\nleft = "{stereo[0]}"\nright = "{stereo[1]}"\n'
+            f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n'
+        )
+        if stereo_calibration:
+            text += f'calibration = "{stereo_calibration}"\n'
+        if stereo_bbox:
+            text += f"bbox = [{', '.join(str(int(v)) for v in stereo_bbox)}]\n"
     if tactile_table:
         text += f'\n[calibration]\ntactile_table = "{tactile_table}"\n'
     return text

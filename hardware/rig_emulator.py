@@ -1,9 +1,10 @@
 """`twin emulate rig`: every emulated device of the rig on one twin, with the rig.toml to reach them.
 
-The hand (BH8-262 on a serial line) and the tactile pads (the PPS interface streaming frames) are
-served from the same real-time twin, so the pads feel what the emulated hand squeezes; the pads'
-calibration files are the twin's simulated ones, written as a manufacturer would ship them. The
-cameras join here when their emulator lands.
+The hand (BH8-262 on a serial line), the tactile pads (the PPS interface streaming frames) and,
+with `cameras=True`, the stereo pair (two MJPEG-over-HTTP streams, hardware/cameras/emulator.py) are
+served from the same real-time twin, so the pads feel what the emulated hand squeezes and the
+cameras see it; the pads' calibration files are the twin's simulated ones, written as a manufacturer
+would ship them, and the cameras' is the twin's ground-truth stereo calibration.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 
 from hardware.bh262.emulator import HandEmulator, make_hand_emulator
 from hardware.bh262.firmware import RealTimeTwin
+from hardware.cameras.emulator import CameraEmulator
 from hardware.pps.emulator import TactileEmulator
 from hardware.rig_config import rig_toml
 
@@ -34,7 +36,7 @@ def twin_tactile_source(twin: RealTimeTwin) -> Callable[[], np.ndarray]:
 
 
 class RigEmulator:
-    """The hand and tactile emulators on one twin."""
+    """The hand, tactile and (optionally) camera emulators on one twin."""
 
     def __init__(
         self,
@@ -45,9 +47,11 @@ class RigEmulator:
         tactile_faults: str | None = None,
         seed: int = 0,
         on_event: Callable[[str], None] | None = None,
+        cameras: bool = False,
     ) -> None:
+        """`cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame)."""
         self.hand: HandEmulator = make_hand_emulator(
-            object_name, baud=baud, faults=faults, seed=seed, on_event=on_event
+            object_name, baud=baud, faults=faults, seed=seed, on_event=on_event, stereo=cameras
         )
         self.tactile = TactileEmulator(
             twin_tactile_source(self.hand.twin),
@@ -55,12 +59,17 @@ class RigEmulator:
             faults=tactile_faults,
             on_event=on_event,
         )
+        self.cameras = CameraEmulator(self.hand.twin, seed=seed, on_event=on_event) if cameras else None
+        self.camera_addresses: tuple[str, str] | None = None
+        """The left and right stream URLs once served (None without cameras)."""
         self.baud = baud
         self._tmp: tempfile.TemporaryDirectory | None = None
 
     def serve(self, where: str = "pty") -> tuple[str, str]:
-        """Serve both on ptys (`pty`) or TCP (`tcp:PORT`: the hand on PORT, the pads on PORT + 1;
-        `tcp:0` picks free ports); returns the two addresses."""
+        """Serve the hand and pads on ptys (`pty`) or TCP (`tcp:PORT`: the hand on PORT, the pads on
+        PORT + 1; `tcp:0` picks free ports); returns their two addresses. The cameras, if any, are
+        served over HTTP on PORT + 2 (a free port with `pty` or `tcp:0`): see `camera_addresses`."""
+        port = 0
         if where == "pty":
             hand = self.hand.serve_pty()
         else:
@@ -69,24 +78,50 @@ class RigEmulator:
             port = 0 if port == 0 else port + 1
         self.hand.twin.start()  # the pads scan the twin from their first frame on
         tactile = self.tactile.serve_pty() if where == "pty" else self.tactile.serve_tcp(port)
+        if self.cameras is not None:
+            self.camera_addresses = self.cameras.serve_http(0 if port == 0 else port + 1)
         return hand, tactile
 
     def write_rig_file(self, path: Path | None) -> Path:
-        """The twin's tactile calibration beside a rig.toml that names both ports; returns the rig.toml."""
+        """The twin's tactile (and stereo) calibration beside a rig.toml that names every port; returns
+        the rig.toml."""
         if path is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="twin-rig-")
             path = Path(self._tmp.name) / "rig.toml"
         path.parent.mkdir(parents=True, exist_ok=True)
         files = self.hand.twin.backend.tactile.sensor.write_files(path.parent / "calibration")
         table = files["tactile_table"].relative_to(path.parent)
+        stereo_calibration, stereo_bbox = None, None
+        if self.cameras is not None and self.camera_addresses is not None:
+            written = self.cameras.write_calibration(path.parent / "calibration")
+            stereo_calibration = str(written.relative_to(path.parent))
+            stereo_bbox = self._object_box(written)
         text = rig_toml(
-            self.hand.address, baud=self.baud, tactile_url=self.tactile.address, tactile_table=str(table)
+            self.hand.address,
+            baud=self.baud,
+            tactile_url=self.tactile.address,
+            tactile_table=str(table),
+            stereo=self.camera_addresses,
+            stereo_rate_hz=self.cameras.rate_hz if self.cameras is not None else 30.0,
+            stereo_calibration=stereo_calibration,
+            stereo_bbox=stereo_bbox,
         )
         path.write_text(text)
         return path
 
+    def _object_box(self, calibration_file: Path) -> tuple[int, int, int, int] | None:
+        """The twin's foam box on the first frame: what a user would draw for the run (rig.toml bbox)."""
+        from twin.vision.calibration import StereoCalibration
+        from twin.vision.reconstruct import Rectifier
+
+        twin = self.hand.twin
+        with twin.lock:
+            return twin.backend.object_box(Rectifier(StereoCalibration.load(calibration_file)))
+
     def close(self) -> None:
-        """Stop both emulators and the twin."""
+        """Stop every emulator and the twin."""
+        if self.cameras is not None:
+            self.cameras.close()
         self.tactile.close()
         self.hand.close()
         if self._tmp is not None:

@@ -84,6 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--rig-file", type=Path, metavar="FILE", help="write a rig.toml pointing here (rig: always)"
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
+    p.add_argument(
+        "--no-cameras", action="store_true", help="rig: leave the stereo cameras out (they cost CPU)"
+    )
 
     p = sub.add_parser("info", help="summarize a run directory")
     p.add_argument("run_dir", type=Path, metavar="DIR")
@@ -96,6 +99,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("view", help="open a run in the Rerun viewer")
     p.add_argument("run_dir", type=Path, metavar="DIR")
+
+    p = sub.add_parser("calibrate", help="calibrate a sensor")
+    cal_sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
+    c = cal_sub.add_parser("cameras", help="stereo pair + camera-to-hand transform (paper §4.1)")
+    c.add_argument(
+        "--out", type=Path, default=Path("stereo_calibration.json"), metavar="FILE", help="calibration file"
+    )
+    c.add_argument(
+        "--views",
+        type=Path,
+        metavar="DIR",
+        help="from image pairs: left_*.png/right_*.png chessboards, palm_left/right.png (default: sim)",
+    )
+    c.add_argument("--seed", type=int, help="sim: seed of the chessboard poses and camera noise (default 0)")
     return parser
 
 
@@ -193,8 +210,21 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    truth = json.loads((outcome.run_dir / "run.json").read_text())["metadata"].get("stereo_truth")
+    if truth:
+        print(f"reconstruction vs the twin's truth: {_surface_summary(truth)}")
     print(f"view it: twin view {outcome.run_dir}")
     return 0
+
+
+def _surface_summary(truth: dict) -> str:
+    """One line: a run's reconstruction accuracy against the twin's truth."""
+    return (
+        f"median {truth['median_mm']:.2f} mm (worst frame {truth['worst_median_mm']:.2f}), "
+        f"coverage {100 * truth['coverage']:.0f} % (worst {100 * truth['worst_coverage']:.0f} %), "
+        f"{100 * truth['frames_within_targets']:.0f} % of {truth['frames']} frames within "
+        f"{truth['targets']['median_mm']:g} mm / {100 * truth['targets']['coverage']:.0f} %"
+    )
 
 
 def _with_progress(duration_s: float, show: bool, job):  # noqa: ANN001
@@ -250,6 +280,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             tactile_faults=args.tactile_faults,
             seed=args.seed,
             on_event=event,
+            cameras=not args.no_cameras,
         )
     try:
         if args.what == "hand":
@@ -262,7 +293,12 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {args.object})", flush=True)
     if args.what == "rig":
         print(f"tactile: {tactile_address}  (PPS pads, 162 taxels at 30 Hz)", flush=True)
-        print("cameras: not emulated yet (issue 5)", flush=True)
+        if emulator.camera_addresses is None:
+            print("cameras: not emulated (--no-cameras)", flush=True)
+        else:
+            left, right = emulator.camera_addresses
+            rate = emulator.cameras.rate_hz
+            print(f"cameras: {left}  {right}  (MJPEG over HTTP, 320x240 at {rate:g} fps)", flush=True)
         print(f"rig file: {emulator.write_rig_file(args.rig_file)}", flush=True)
     elif args.rig_file:
         args.rig_file.write_text(rig_toml(address, baud=args.baud))
@@ -321,6 +357,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         console.print(
             f"  object: {obj['name']} ({obj['shape']}, E = {obj['young_pa']:g} Pa, nu = {obj['poisson']:g})"
         )
+    if meta.get("stereo_truth"):
+        console.print(f"  reconstruction vs truth: {_surface_summary(meta['stereo_truth'])}")
     table = Table(title="streams")
     for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)"):
         table.add_column(col, justify="right" if col != "stream" else "left")
@@ -378,6 +416,24 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
+    """`twin calibrate cameras`: stereo + camera-to-hand calibration on the twin (errors against its
+    truth) or from image pairs on disk; writes the calibration file atomically."""
+    from experiments.calibrate_cameras import calibrate_sim, calibrate_views
+
+    if args.views is not None and args.seed is not None:
+        raise ConfigError("--seed is for the sim; --views calibrates from the images given")
+    if args.out.is_dir():
+        raise ConfigError(f"--out {args.out}: is a directory")
+    if not args.out.parent.is_dir():
+        raise ConfigError(f"--out {args.out}: no such directory {args.out.parent}")
+    outcome = calibrate_views(args.views) if args.views is not None else calibrate_sim(seed=args.seed or 0)
+    for line in outcome.summary():
+        print(line)
+    print(f"wrote {outcome.calibration.save(args.out)}")
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     """`twin view DIR`: the Rerun viewer, or how to get one when there is no display."""
     from twin.session import RRD_NAME
@@ -411,6 +467,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return cmd_run_compress(args)
+        if args.command == "calibrate":
+            return cmd_calibrate_cameras(args)
         return handlers[args.command](args)
     except TwinError as exc:
         return _fail(str(exc))

@@ -123,6 +123,42 @@ def tactile_stream_spec(rate_hz: float) -> StreamSpec:
     )
 
 
+STEREO_TRUTH_FIELDS = ("median_mm", "p90_mm", "coverage", "outside_fraction", "visible_px")
+
+
+def stereo_truth_stream_spec(rate_hz: float) -> StreamSpec:
+    """Each stereo frame's reconstruction scored against the twin's true foam surface."""
+    return StreamSpec(
+        name="stereo_truth",
+        rate_hz=rate_hz,
+        description="reconstruction vs the true foam surface at the frame's instant (twin.sim.surface_truth)",
+        fields={
+            "median_mm": FieldSpec(unit="mm", kind="truth", description="median point-to-surface distance"),
+            "p90_mm": FieldSpec(unit="mm", kind="truth", description="90th percentile of the same"),
+            "coverage": FieldSpec(unit="1", kind="truth", description="visible foam pixels with a point"),
+            "outside_fraction": FieldSpec(unit="1", kind="truth", description="points off the foam"),
+            "visible_px": FieldSpec(unit="px", dtype="int32", kind="truth", description="foam pixels seen"),
+        },
+    )
+
+
+def summarize_surface_scores(scores: list[dict], median_mm: float = 1.5, coverage: float = 0.6) -> dict:
+    """A run's reconstruction accuracy over its stereo frames (what run.json and `twin info` report)."""
+    med = np.array([s["median_mm"] for s in scores], dtype=float)
+    cov = np.array([s["coverage"] for s in scores], dtype=float)
+    ok = (med <= median_mm) & (cov >= coverage)
+    return {
+        "frames": len(scores),
+        "median_mm": float(np.nanmedian(med)),
+        "worst_median_mm": float(np.nanmax(med)),
+        "p90_mm": float(np.nanmedian([s["p90_mm"] for s in scores])),
+        "coverage": float(np.median(cov)),
+        "worst_coverage": float(np.min(cov)),
+        "frames_within_targets": float(np.mean(ok)),
+        "targets": {"median_mm": median_mm, "coverage": coverage},
+    }
+
+
 @dataclass(order=True)
 class _Event:
     t_s: float
@@ -175,7 +211,9 @@ class Rig:
         self.samples: dict[str, int] = {}
         self.stop_reason: str | None = None
         self._vision: ThreadPoolExecutor | None = None
-        self._stereo_jobs: deque[tuple[StereoFrame, Future[SurfaceFrame]]] = deque()
+        self._stereo_jobs: deque[tuple[StereoFrame, Future]] = deque()
+        self.surface_scores: list[dict] = []
+        """Per stereo frame, the reconstruction scored against the twin's truth (sim only)."""
         hand_spec = backend.hand.spec
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:
@@ -187,6 +225,8 @@ class Rig:
                 writer.add_stream(tactile_stream_spec(backend.tactile.spec.rate_hz))
             if stereo_pipeline is not None:
                 writer.add_stream(stereo_stream_spec(backend.stereo.spec.rate_hz))
+                if backend.ground_truth() is not None:
+                    writer.add_stream(stereo_truth_stream_spec(backend.stereo.spec.rate_hz))
 
     def _push(self, t_s: float, kind: str, payload: object = None) -> None:
         self._order += 1
@@ -244,7 +284,8 @@ class Rig:
                     self._deliver_tactile(event.payload)
                 elif event.kind == "sample_stereo":
                     frame = stereo.read()
-                    self._push(max(frame.t_s + stereo_latency, event.t_s), "deliver_stereo", frame)
+                    truth = self.backend.surface_truth(self.stereo_pipeline.rectifier)
+                    self._push(max(frame.t_s + stereo_latency, event.t_s), "deliver_stereo", (frame, truth))
                 elif event.kind == "deliver_stereo":
                     self._deliver_stereo(event.payload)
                 elif event.kind == "scene":
@@ -342,20 +383,33 @@ class Rig:
         if log_tactile is not None:
             log_tactile(scan.t_s, pressure, forces)
 
-    def _deliver_stereo(self, frame: StereoFrame) -> None:
+    def _deliver_stereo(self, payload: tuple[StereoFrame, object]) -> None:
         """Hand the pair to the vision worker (it runs beside the physics); record what it finished."""
+        frame, truth = payload
         pipeline = self.stereo_pipeline
         if self._vision is None:
             self._vision = ThreadPoolExecutor(1, thread_name_prefix="vision")
         self._record_stereo(wait=False)
-        job = self._vision.submit(pipeline.process, frame, pipeline.tactile_points())
+        job = self._vision.submit(self._process_frame, frame, pipeline.tactile_points(), truth)
         self._stereo_jobs.append((frame, job))
+
+    def _process_frame(
+        self, frame: StereoFrame, tactile_points: np.ndarray, truth: object
+    ) -> tuple[SurfaceFrame, dict | None]:
+        """On the vision worker: reconstruct and fuse, then score against the truth where known."""
+        surface = self.stereo_pipeline.process(frame, tactile_points)
+        r = surface.reconstruction
+        return surface, self.backend.score_surface(truth, r.points_hand, r.pixels)
 
     def _record_stereo(self, wait: bool) -> None:
         """Record finished frames in order (all of them when `wait`); a worker's error is raised here."""
         while self._stereo_jobs and (wait or self._stereo_jobs[0][1].done()):
             frame, job = self._stereo_jobs.popleft()
-            self._record_surface(frame, job.result())
+            surface, score = job.result()
+            self._record_surface(frame, surface)
+            if score is not None:
+                self.surface_scores.append(score)
+                self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
 
     def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
         self._record("stereo", frame.t_s, surface.record())

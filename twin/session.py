@@ -20,7 +20,7 @@ from twin import __version__, units
 from twin.interface.backend import Backend
 from twin.interface.errors import ConfigError
 from twin.recording import RunWriter
-from twin.rig import Rig, RigResult
+from twin.rig import Rig, RigResult, summarize_surface_scores
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import load_calibration
 from twin.vision.calibration import StereoCalibration
@@ -130,6 +130,7 @@ def run_experiment(
             tactile_calibration = load_calibration(files) if backend.tactile is not None else None
             stereo_pipeline = _stereo_pipeline(backend, files, stereo_box)
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
+            rig = None
             try:
                 scene_logger = _scene_logger(backend, recording)
                 if stereo_pipeline is not None:
@@ -150,6 +151,8 @@ def run_experiment(
                 writer.update_metadata(final_phase=result.final_phase)
             finally:  # what went wrong is kept even when the run failed
                 writer.update_metadata(**backend.diagnostics())
+                if rig is not None and rig.surface_scores:
+                    writer.update_metadata(stereo_truth=summarize_surface_scores(rig.surface_scores))
                 recording.close()
         return RunOutcome(run_dir, rrd_path, result, "complete")
     finally:

@@ -257,12 +257,15 @@ def make_hand_emulator(
     options: WireOptions = DEFAULT_OPTIONS,
     seed: int = 0,
     on_event: Callable[[str], None] | None = None,
+    stereo: bool = False,
 ) -> HandEmulator:
-    """A hand emulator on a fresh twin holding `object_name` from the foam library (None: no object)."""
+    """A hand emulator on a fresh twin holding `object_name` from the foam library (None: no object).
+
+    `stereo`: build the twin's scene with the two cameras (for hardware.cameras.emulator)."""
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object
 
     plan = FaultPlan.parse(faults)
     foam = get_object(object_name) if object_name else None
-    twin = RealTimeTwin(SimBackend(foam, seed=seed))
+    twin = RealTimeTwin(SimBackend(foam, seed=seed, stereo=stereo))
     return HandEmulator(twin, baud=baud, options=options, faults=plan, on_event=on_event)

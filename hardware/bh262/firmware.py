@@ -113,6 +113,8 @@ class RealTimeTwin:
             return
         with self.lock:
             for device in self.backend.devices():  # the hand, and the tactile pads for the rig emulator
+                if device is self.backend.stereo:  # the camera emulator renders on its own GL context
+                    continue
                 if not device.is_connected:
                     device.connect()
         self._thread.start()

@@ -87,6 +87,16 @@ class Backend(ABC):
         it (the sim projects its foam); None: the user draws it (`--bbox`)."""
         return None
 
+    def surface_truth(self, rectifier: Any) -> Any:
+        """A snapshot of the object's true surface now (the sim), to score the reconstruction of the
+        frame sampled now against; None where nobody knows it (hardware)."""
+        return None
+
+    def score_surface(self, truth: Any, points_hand: np.ndarray, pixels: np.ndarray) -> dict | None:
+        """Score reconstructed points and their rectified left pixels against a `surface_truth`
+        snapshot (thread-safe: it may run on the vision worker); None without truth."""
+        return None
+
     def hand_pose_in_world(self) -> np.ndarray | None:
         """4x4 pose of the hand frame (palm) in the 3-D scene's world frame; None without a scene."""
         return None

@@ -18,6 +18,7 @@ from twin.sim.cameras import LEFT_CAMERA, SimStereo, camera_pose_cv
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
+from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth, score_against
 from twin.sim.tactile import SimTactile, SimTactileSensor
 from twin.sim.world import SimWorld
 from twin.vision.calibration import StereoCalibration
@@ -88,6 +89,7 @@ class SimBackend(Backend):
             if stereo
             else None
         )
+        self._scorer: SurfaceScorer | None = None
         self._clock = SimClock(self.world)
         m = self.world.model
         self._inner = [m.joint(f"f{k}_inner").qposadr[0] for k in FINGERS]
@@ -148,6 +150,38 @@ class SimBackend(Backend):
         w, h = rectifier.image_size
         x0, y0 = max(0, int(x0)), max(0, int(y0))
         return x0, y0, min(w, int(np.ceil(x1))) - x0, min(h, int(np.ceil(y1))) - y0
+
+    def surface_truth(self, rectifier: Rectifier) -> SurfaceTruth | None:
+        """The foam's visible pixels and rendered surface now (twin.sim.surface_truth)."""
+        if self.foam is None or self.stereo is None:
+            return None
+        if self._scorer is None or self._scorer.rectifier is not rectifier:
+            if self._scorer is not None:
+                self._scorer.close()
+            self._scorer = SurfaceScorer(self.world.model, self.world.data, rectifier)
+        return self._scorer.snapshot()
+
+    def score_surface(
+        self, truth: SurfaceTruth | None, points_hand: np.ndarray, pixels: np.ndarray
+    ) -> dict | None:
+        """Median/p90 distance to the true surface (mm), visible-surface coverage, points off the foam."""
+        if truth is None:
+            return None
+        score = score_against(truth, points_hand, pixels)
+        return {
+            "median_mm": score.median_mm,
+            "p90_mm": score.p90_mm,
+            "coverage": score.coverage,
+            "outside_fraction": score.outside_fraction,
+            "visible_px": score.visible_px,
+        }
+
+    def disconnect(self) -> None:
+        """Disconnect the devices and free the truth scorer's renderer."""
+        super().disconnect()
+        if self._scorer is not None:
+            self._scorer.close()
+            self._scorer = None
 
     def hand_pose_in_world(self) -> np.ndarray:
         """4x4 pose of the palm body in the world (fixed: the hand is mounted)."""

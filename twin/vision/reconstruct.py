@@ -357,6 +357,7 @@ def reconstruct(
     max_edge_m: float = 0.008,
     mesh_stride: int = 1,
     mesh: bool = True,
+    erode_px: int = 0,
 ) -> Reconstruction:
     """The whole pipeline on one unrectified RGB pair.
 
@@ -365,6 +366,8 @@ def reconstruct(
     `mesh_stride`: mesh only the points on every n-th row and column (n^2 fewer vertices, the mesh being
     the slowest stage); the triangles still index `points_hand`, which keeps every point.
     `mesh`: False leaves `triangles` empty (for a caller that meshes a fused cloud itself).
+    `erode_px`: shrink the object's mask by this many pixels before taking points: at its border a
+    block straddles the object and whatever hides it, and takes the nearer surface's disparity.
     """
     if mesh_stride < 1:
         raise ValueError(f"mesh_stride must be >= 1, got {mesh_stride}")
@@ -379,6 +382,9 @@ def reconstruct(
         mask, box = np.asarray(tracker_or_mask, dtype=bool), None
         if mask.shape != left_rect.shape[:2]:
             raise ValueError(f"mask shape {mask.shape} is not the image's {left_rect.shape[:2]}")
+    if erode_px > 0:  # block matching smears a nearer occluder's disparity this far into the object
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erode_px + 1, 2 * erode_px + 1))
+        mask = cv2.erode(mask.astype(np.uint8), kernel).astype(bool)
     t2 = time.perf_counter()
     timings["track"] = 1e3 * (t2 - t1)
     disparity = compute_disparity(left_rect, right_rect, matcher or default_matcher(rectifier))

@@ -1,8 +1,18 @@
 """Every Rerun call of the project: one recording per run, saved to an .rrd with a default blueprint.
 
 The 3-D view shows the MuJoCo model (visual geoms on their bodies) and the deforming foam; time series
-show each finger's position, velocity, torque and force; a tab waits for tactile heatmaps and camera
-images. Reading an .rrd back uses Rerun's own chunk reader (`rerun.chunk.RrdReader`): Rerun 0.41 has no
+show each finger's position, velocity, torque and force; a tab holds the tactile heatmaps and, once the
+stereo pair is set up, the camera images and the rectified depth.
+
+Stereo (log_stereo_setup, log_stereo): everything the vision produces lives in the hand frame
+(HAND_ENTITY, "/world/hand", posed at the palm body's world pose so it sits on the hand model): the
+two cameras as pinholes with their images (JPEG), the rectified left camera with the depth from the
+disparity, the reconstructed cloud and mesh, the fused cloud and mesh and the tactile contact points.
+Measured: ~24 kB a frame for both 320x240 views at JPEG quality 85, ~6 kB the depth image, ~60 kB the
+~6000-point coloured cloud, ~45 kB the fused cloud and mesh; ~140 kB a stereo frame in all, ~250 MB
+for 60 s at 30 fps (raw images alone would be 450 kB a frame).
+
+Reading an .rrd back uses Rerun's own chunk reader (`rerun.chunk.RrdReader`): Rerun 0.41 has no
 `rerun.dataframe` module any more, and its DataFusion query API (`ChunkStore.reader`) needs the
 optional `datafusion` package, which this project does not install.
 """
@@ -23,6 +33,9 @@ if TYPE_CHECKING:
     import mujoco
     from rerun.chunk import Chunk
 
+    from twin.vision.calibration import StereoCalibration
+    from twin.vision.reconstruct import Reconstruction
+
 TIMELINE = "sim_time"
 PLOT_GROUPS = ("position_counts", "velocity_counts", "torque_nm", "force_kg")
 PLOT_STREAMS = ("hand",)
@@ -34,6 +47,25 @@ PRESSURE_FULL_SCALE_KPA = 150.0
 """Top of the heatmap colour scale: about 2 kg on four 6 mm taxels."""
 CONTACT_ARROW_M_PER_N = 0.004
 LOG_ENTITY = "log"
+HAND_ENTITY = "world/hand"
+"""The hand (palm body) frame: placed at the palm's world pose, identity without a sim scene."""
+STEREO_ENTITY = f"{HAND_ENTITY}/stereo"
+CAMERA_SIDES = ("left", "right")
+RECTIFIED_ENTITY = f"{STEREO_ENTITY}/rectified_left"
+"""The rectified left camera: the disparity's view, logged as a depth image under its pinhole."""
+CLOUD_ENTITY = f"{STEREO_ENTITY}/cloud"
+MESH_ENTITY = f"{STEREO_ENTITY}/mesh"
+FUSED_CLOUD_ENTITY = f"{HAND_ENTITY}/fused/cloud"
+FUSED_MESH_ENTITY = f"{HAND_ENTITY}/fused/mesh"
+TACTILE_POINTS_ENTITY = f"{HAND_ENTITY}/tactile_contacts"
+JPEG_QUALITY = 85
+"""Camera images are logged JPEG-compressed: ~10 KB a 320x240 view instead of 230 KB raw."""
+DEPTH_MM_PER_UNIT = 0.1
+"""Depth images are uint16 in units of 0.1 mm (0 = no depth), good to 6.5 m."""
+CAMERA_PLANE_M = 0.05
+"""Where the viewer draws each camera's image plane, in front of its centre."""
+FUSED_RGB = (90, 170, 230)
+TACTILE_POINTS_RGB = (230, 50, 50)
 # mjtGeom values (stable across MuJoCo 3.x): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4,
 # cylinder 5, box 6, mesh 7, sdf 8. Height fields and SDFs are not drawn.
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 0, 2, 3, 4, 5, 6, 7
@@ -44,21 +76,29 @@ _UNSAFE = re.compile(r"[^\w.\-]")
 
 
 def default_blueprint(
-    plot_groups: Sequence[str] = PLOT_GROUPS, *, streams: Sequence[str] = PLOT_STREAMS
+    plot_groups: Sequence[str] = PLOT_GROUPS, *, streams: Sequence[str] = PLOT_STREAMS, stereo: bool = False
 ) -> rrb.Blueprint:
     """3-D scene left, one time-series view per plot group right, a tab reserved for sensors.
 
     The view of group g shows field g of every stream in `streams` ("/plots/<stream>/<g>"). Rerun's
     entity filters only take `**` at the end of a path ("/plots/**/g" matches nothing), hence the
-    explicit streams; RunRecording re-sends the blueprint when a new stream is logged.
+    explicit streams; RunRecording re-sends the blueprint when a new stream is logged. With `stereo`,
+    the sensor tabs also show the left and right camera images and the rectified depth.
     """
     plots = [
         rrb.TimeSeriesView(name=group, origin="/plots", contents=[f"/plots/{s}/{group}" for s in streams])
         for group in plot_groups
     ]
+    cameras = (
+        [rrb.Spatial2DView(name=f"{side} camera", origin=f"/{STEREO_ENTITY}/{side}") for side in CAMERA_SIDES]
+        + [rrb.Spatial2DView(name="rectified depth", origin=f"/{RECTIFIED_ENTITY}")]
+        if stereo
+        else []
+    )
     sensors = rrb.Tabs(
         rrb.Spatial2DView(name="tactile pads (kPa)", origin=f"/{TACTILE_ENTITY}"),
         rrb.TimeSeriesView(name="pad forces, eq. 6 (N)", origin="/plots/tactile"),
+        *cameras,
         rrb.TextDocumentView(name="cameras", origin=f"/{SENSORS_ENTITY}"),
         rrb.TextLogView(name="log", origin=f"/{LOG_ENTITY}"),
         name="Tactile & cameras",
@@ -103,6 +143,11 @@ class RunRecording:
         self._closed = False
         self._tactile_static: tuple[np.ndarray, np.ndarray] | None = None
         self._body_paths: dict[str, str] = {}
+        self._stereo = False
+        self._depth_from_disparity: tuple[float, float, float] | None = None
+
+    def _send_blueprint(self) -> None:
+        self.rec.send_blueprint(default_blueprint(streams=self._plot_streams, stereo=self._stereo))
 
     def _open(self, t_s: float | None) -> None:
         if self._closed:
@@ -228,7 +273,7 @@ class RunRecording:
         self._open(t_s)
         if stream not in self._plot_streams:
             self._plot_streams.append(stream)
-            self.rec.send_blueprint(default_blueprint(streams=self._plot_streams))
+            self._send_blueprint()
         for field, value in values.items():
             path = f"plots/{stream}/{field}"
             arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
@@ -246,6 +291,109 @@ class RunRecording:
         """A line in the run's text log (entity "log")."""
         self._open(t_s)
         self.rec.log(LOG_ENTITY, rr.TextLog(text, level=level))
+
+    def log_stereo_setup(
+        self, calibration: StereoCalibration, hand_from_world: ArrayLike | None = None
+    ) -> None:
+        """The stereo pair, statically: the hand frame, both cameras and the rectified left camera.
+
+        `hand_from_world` is the palm body's world pose (4x4; on the sim it is fixed: the hand is
+        mounted), so that whatever is logged in the hand frame sits on the hand model; None logs the hand
+        frame at the world origin (a real rig without a 3-D scene). Entities: HAND_ENTITY (that pose),
+        STEREO_ENTITY/left and /right (Transform3D hand_from_camera + Pinhole, OpenCV axes) and
+        RECTIFIED_ENTITY (the rectified left camera, whose depth image log_stereo fills).
+        """
+        from twin.vision.reconstruct import Rectifier
+
+        self._open(None)
+        pose = np.eye(4) if hand_from_world is None else np.asarray(hand_from_world, dtype=np.float64)
+        if pose.shape != (4, 4):
+            raise ValueError(f"hand_from_world must be a 4x4 pose, got shape {pose.shape}")
+        self.rec.log(HAND_ENTITY, _transform(pose), static=True)
+        right_from_left = np.eye(4)
+        right_from_left[:3, :3] = calibration.rotation
+        right_from_left[:3, 3] = np.ravel(calibration.translation_m)
+        hand_from_right = calibration.hand_from_left @ np.linalg.inv(right_from_left)
+        for side, cam, hand_from_cam in (
+            ("left", calibration.left, calibration.hand_from_left),
+            ("right", calibration.right, hand_from_right),
+        ):
+            self.rec.log(
+                f"{STEREO_ENTITY}/{side}",
+                _transform(hand_from_cam),
+                _pinhole(cam.matrix, cam.image_size),
+                static=True,
+            )
+        rectifier = Rectifier(calibration)
+        self.rec.log(
+            RECTIFIED_ENTITY,
+            _transform(rectifier.hand_from_rectified),
+            _pinhole(rectifier.P1[:3, :3], rectifier.image_size),
+            static=True,
+        )
+        q = rectifier.Q  # Z = Q[2,3] / (Q[3,2] d + Q[3,3]) in the rectified left frame
+        self._depth_from_disparity = (float(q[2, 3]), float(q[3, 2]), float(q[3, 3]))
+        if not self._stereo:
+            self._stereo = True
+            self._send_blueprint()
+
+    def log_stereo(
+        self,
+        t_s: float,
+        left: np.ndarray,
+        right: np.ndarray,
+        reconstruction: Reconstruction | None = None,
+        fused_points_hand: ArrayLike | None = None,
+        fused_triangles: ArrayLike | None = None,
+        tactile_points_hand: ArrayLike | None = None,
+        *,
+        jpeg_quality: int | None = JPEG_QUALITY,
+    ) -> None:
+        """One stereo frame at sim time t_s: both images, and what the vision made of them.
+
+        Images (RGB uint8) go under their pinholes, JPEG-compressed (`jpeg_quality` None: raw). With a
+        reconstruction: its disparity as a depth image of the rectified left camera (uint16,
+        DEPTH_MM_PER_UNIT, only where the object's mask holds a match; needs log_stereo_setup), its
+        coloured points (CLOUD_ENTITY) and its mesh (MESH_ENTITY, the vertices it uses only). The fused
+        cloud and mesh and the tactile contact points, hand frame, when given. Nothing is logged for
+        what is not given, so a viewer keeps showing the last one.
+        """
+        self._open(t_s)
+        for side, image in (("left", left), ("right", right)):
+            self.rec.log(f"{STEREO_ENTITY}/{side}/image", _image(image, jpeg_quality))
+        if reconstruction is not None:
+            r = reconstruction
+            if self._depth_from_disparity is not None:
+                depth = _depth_units(r.disparity, r.mask, *self._depth_from_disparity)
+                self.rec.log(f"{RECTIFIED_ENTITY}/depth", rr.DepthImage(depth, meter=1e3 / DEPTH_MM_PER_UNIT))
+            points = np.asarray(r.points_hand, dtype=np.float32).reshape(-1, 3)
+            colors = np.asarray(r.colors, dtype=np.uint8).reshape(-1, 3)
+            self.rec.log(CLOUD_ENTITY, rr.Points3D(points, colors=colors, radii=0.0006))
+            used, faces = _compact_mesh(np.asarray(r.triangles).reshape(-1, 3))
+            self.rec.log(
+                MESH_ENTITY,
+                rr.Mesh3D(vertex_positions=points[used], triangle_indices=faces, vertex_colors=colors[used]),
+            )
+        if fused_points_hand is not None:
+            fused = np.asarray(fused_points_hand, dtype=np.float32).reshape(-1, 3)
+            self.rec.log(FUSED_CLOUD_ENTITY, rr.Points3D(fused, colors=[FUSED_RGB], radii=0.0006))
+            if fused_triangles is not None:
+                used, faces = _compact_mesh(np.asarray(fused_triangles).reshape(-1, 3))
+                verts = fused[used]
+                self.rec.log(
+                    FUSED_MESH_ENTITY,
+                    rr.Mesh3D(
+                        vertex_positions=verts,
+                        triangle_indices=faces,
+                        vertex_normals=_vertex_normals(verts, faces) if len(faces) else None,
+                        albedo_factor=[*FUSED_RGB, 255],
+                    ),
+                )
+        if tactile_points_hand is not None:
+            tactile = np.asarray(tactile_points_hand, dtype=np.float32).reshape(-1, 3)
+            self.rec.log(
+                TACTILE_POINTS_ENTITY, rr.Points3D(tactile, colors=[TACTILE_POINTS_RGB], radii=0.0015)
+            )
 
     def close(self) -> None:
         """Flush and finish the .rrd; safe to call twice."""
@@ -345,6 +493,55 @@ def _geom_archetype(model: mujoco.MjModel, g: int, color: np.ndarray) -> rr.AsCo
             albedo_factor=color,
         )
     return None
+
+
+def _transform(pose: ArrayLike) -> rr.Transform3D:
+    """A 4x4 parent_from_child pose as the child entity's Transform3D."""
+    t = np.asarray(pose, dtype=np.float64)
+    return rr.Transform3D(translation=t[:3, 3], mat3x3=t[:3, :3])
+
+
+def _pinhole(matrix: ArrayLike, image_size: Sequence[int]) -> rr.Pinhole:
+    """An OpenCV camera (x right, y down, z forward) of intrinsics K and (width, height)."""
+    return rr.Pinhole(
+        image_from_camera=np.asarray(matrix, dtype=np.float64),
+        resolution=[float(image_size[0]), float(image_size[1])],
+        camera_xyz=rr.ViewCoordinates.RDF,
+        image_plane_distance=CAMERA_PLANE_M,
+    )
+
+
+def _image(rgb: np.ndarray, jpeg_quality: int | None) -> rr.Image | rr.EncodedImage:
+    """An RGB (or grey) uint8 image, JPEG-encoded by OpenCV unless jpeg_quality is None."""
+    image = np.asarray(rgb)
+    if jpeg_quality is None:
+        return rr.Image(image, color_model="RGB" if image.ndim == 3 else "L")
+    import cv2
+
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    ok, jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    if not ok:
+        raise ValueError(f"could not JPEG-encode an image of shape {image.shape}")
+    return rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg")
+
+
+def _depth_units(disparity: np.ndarray, mask: np.ndarray, q23: float, q32: float, q33: float) -> np.ndarray:
+    """uint16 depth (DEPTH_MM_PER_UNIT) of the rectified left view where the mask holds a match, else 0."""
+    d = np.asarray(disparity, dtype=np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_mm = 1e3 * q23 / (q32 * d + q33)
+    units = z_mm / DEPTH_MM_PER_UNIT
+    ok = np.asarray(mask, dtype=bool) & np.isfinite(units) & (units > 0) & (units < 65535)
+    return np.where(ok, np.rint(units), 0).astype(np.uint16)
+
+
+def _compact_mesh(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices of the vertices a triangle list uses (ascending) and the triangles re-indexed into
+    them: a mesh over a subset of a cloud (mesh_stride > 1) logs that subset only."""
+    if len(triangles) == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros((0, 3), dtype=np.uint32)
+    used, inverse = np.unique(triangles.reshape(-1), return_inverse=True)
+    return used, inverse.reshape(-1, 3).astype(np.uint32)
 
 
 def _flex_surface(model: mujoco.MjModel, f: int) -> np.ndarray:
@@ -475,3 +672,116 @@ def read_rrd_views(rrd_path: Path | str) -> dict[str, dict[str, object]]:
         }
         for view, p in props.items()
     }
+
+
+def _rows(
+    rrd_path: Path | str, entity_path: str, columns: Sequence[str], timeline: str = TIMELINE
+) -> list[tuple[float | None, dict[str, object]]]:
+    """(time in s, or None for a static row; {column: cell}) of each row of an entity that has
+    columns[0], in time order (static rows first)."""
+    entity_path = "/" + entity_path.lstrip("/")
+    rows: list[tuple[float | None, dict[str, object]]] = []
+    for chunk in _chunks(rrd_path, content=entity_path, components=list(columns)):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path != entity_path or columns[0] not in batch.schema.names:
+            continue
+        n = batch.num_rows
+        cells = {c: batch.column(c).to_pylist() if c in batch.schema.names else [None] * n for c in columns}
+        if timeline in batch.schema.names:
+            t = batch.column(timeline).to_numpy(zero_copy_only=False)
+            times = t.astype("timedelta64[ns]").astype(np.int64) / 1e9 if t.dtype.kind == "m" else t
+        else:
+            times = [None] * n
+        for i in range(n):
+            if cells[columns[0]][i] is not None:
+                rows.append(
+                    (None if times[i] is None else float(times[i]), {c: cells[c][i] for c in columns})
+                )
+    rows.sort(key=lambda r: -np.inf if r[0] is None else r[0])
+    return rows
+
+
+def read_rrd_pinholes(rrd_path: Path | str) -> dict[str, tuple[np.ndarray, tuple[int, int]]]:
+    """Entity -> (K (3, 3), (width, height)) of every rr.Pinhole in an .rrd (the last one logged)."""
+    k_col = rr.Pinhole.descriptor_image_from_camera().component
+    res_col = rr.Pinhole.descriptor_resolution().component
+    out: dict[str, tuple[np.ndarray, tuple[int, int]]] = {}
+    for chunk in _chunks(rrd_path, components=[k_col, res_col]):
+        batch = chunk.to_record_batch()
+        if k_col not in batch.schema.names:
+            continue
+        ks = batch.column(k_col).to_pylist()
+        res = batch.column(res_col).to_pylist() if res_col in batch.schema.names else [None] * len(ks)
+        for k, r in zip(ks, res, strict=True):
+            if k is not None:
+                size = (0, 0) if r is None else (int(r[0][0]), int(r[0][1]))
+                out[chunk.entity_path] = (np.array(k[0], dtype=np.float64).reshape(3, 3).T, size)
+    return out
+
+
+def read_rrd_transforms(rrd_path: Path | str, entity_path: str) -> list[np.ndarray]:
+    """4x4 parent_from_entity poses of the Transform3D rows (translation + mat3x3) of an entity."""
+    columns = [
+        rr.Transform3D.descriptor_translation().component,
+        rr.Transform3D.descriptor_mat3x3().component,
+    ]
+    poses = []
+    for _, cells in _rows(rrd_path, entity_path, columns):
+        pose = np.eye(4)
+        pose[:3, 3] = np.asarray(cells[columns[0]], dtype=np.float64).reshape(-1)
+        if cells[columns[1]] is not None:
+            pose[:3, :3] = np.asarray(cells[columns[1]], dtype=np.float64).reshape(3, 3).T
+        poses.append(pose)
+    return poses
+
+
+def read_rrd_points(
+    rrd_path: Path | str, entity_path: str
+) -> list[tuple[float | None, np.ndarray, np.ndarray]]:
+    """(time s, positions (n, 3), colours (n, 4) RGBA uint8 or (0, 4)) of each Points3D row, in time
+    order."""
+    columns = [rr.Points3D.descriptor_positions().component, rr.Points3D.descriptor_colors().component]
+    out = []
+    for t, cells in _rows(rrd_path, entity_path, columns):
+        colors = np.array(cells[columns[1]] or [], dtype=np.uint32)
+        rgba = ((colors[:, None] >> np.array([24, 16, 8, 0], dtype=np.uint32)) & 0xFF).astype(np.uint8)
+        out.append((t, np.array(cells[columns[0]], dtype=np.float32).reshape(-1, 3), rgba.reshape(-1, 4)))
+    return out
+
+
+_DATATYPES = {6: np.uint8, 7: np.int8, 8: np.uint16, 9: np.int16, 10: np.uint32, 11: np.int32, 33: np.float16}
+_DATATYPES |= {12: np.uint64, 13: np.int64, 34: np.float32, 35: np.float64}
+
+
+def _decode(buffer: object, fmt: dict) -> np.ndarray:
+    """An rr.Image / rr.DepthImage buffer as an (H, W[, C]) array."""
+    dtype = _DATATYPES[int(fmt["channel_datatype"])]
+    flat = np.frombuffer(np.asarray(buffer, dtype=np.uint8).tobytes(), dtype=dtype)
+    image = flat.reshape(int(fmt["height"]), int(fmt["width"]), -1)
+    return image[..., 0] if image.shape[2] == 1 else image
+
+
+def read_rrd_images(rrd_path: Path | str, entity_path: str) -> list[tuple[float | None, np.ndarray]]:
+    """(time s, image) of each image row of an entity, in time order: rr.EncodedImage rows decoded
+    (RGB uint8 for colour JPEG/PNG), rr.Image rows as logged, rr.DepthImage rows in metres (0 = none)."""
+    encoded = [rr.EncodedImage.descriptor_blob().component]
+    raw = [rr.Image.descriptor_buffer().component, rr.Image.descriptor_format().component]
+    depth = [
+        rr.DepthImage.descriptor_buffer().component,
+        rr.DepthImage.descriptor_format().component,
+        rr.DepthImage.descriptor_meter().component,
+    ]
+    import cv2
+
+    out: list[tuple[float | None, np.ndarray]] = []
+    for t, cells in _rows(rrd_path, entity_path, encoded):
+        blob = np.asarray(cells[encoded[0]][0], dtype=np.uint8)
+        image = cv2.imdecode(blob, cv2.IMREAD_UNCHANGED)
+        out.append((t, cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image))
+    for t, cells in _rows(rrd_path, entity_path, raw):
+        out.append((t, _decode(cells[raw[0]][0], cells[raw[1]][0])))
+    for t, cells in _rows(rrd_path, entity_path, depth):
+        meter = cells[depth[2]][0] if cells[depth[2]] else 1.0
+        out.append((t, _decode(cells[depth[0]][0], cells[depth[1]][0]).astype(np.float64) / float(meter)))
+    out.sort(key=lambda r: -np.inf if r[0] is None else r[0])
+    return out

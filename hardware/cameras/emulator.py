@@ -1,0 +1,385 @@
+"""The Flea2 stereo pair emulated from the twin: both views rendered from one physics state, served as
+two MJPEG-over-HTTP streams that `cv2.VideoCapture(url, cv2.CAP_FFMPEG)` opens like a camera.
+
+Transport: each side is `http://HOST:PORT/left.mjpg` / `.../right.mjpg`, `multipart/x-mixed-replace`
+with one JPEG per part (FFMPEG's mpjpeg demuxer). It opens in milliseconds (the demuxer probes one
+part) and a grab returns a frame well under a millisecond after it is sent: no probing or buffering
+options are needed. Matroska over HTTP, which would carry timestamps, was tried and rejected: FFMPEG
+probes ~1.4 s of it on open and those frames stay queued (1.3 s of latency) unless
+OPENCV_FFMPEG_CAPTURE_OPTIONS lowers probesize, and OpenCV still reports its timestamps relative to
+each connection's first frame, so they could not pair the two streams anyway.
+
+A hardware-triggered pair without timestamps: every frame period (`rate_hz`) the render thread copies
+the twin's state under the twin's lock (mj_copyData, well under a millisecond), renders both views
+from that copy outside the lock (twin.sim.cameras.SimStereo: native 640x480 area-averaged to 320x240,
+the declared sensor noise) and JPEG-encodes them. The two streams of a host are kept in step by the
+server: a connection on one side opened within `PAIR_WINDOW_S` of one on the other side joins its
+pair and starts at the same frame, and when a host reads slower than the rate both streams of the
+pair skip the same frames (the first side to move on picks the newest frame, the other follows), so
+grabbing left then right always returns the two views of one state, and never a stale one queued
+behind newer frames for more than about a period.
+
+Rendering needs its own GL context: the emulator's SimStereo is created, connected and used on the
+render thread only (an EGL context cannot be current on two threads), on a copy of the twin's MjData.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from twin.interface.devices import StereoFrame
+from twin.interface.errors import ConfigError
+
+if TYPE_CHECKING:
+    from hardware.bh262.firmware import RealTimeTwin
+
+SIDES = ("left", "right")
+BOUNDARY = "twinframe"
+DEFAULT_QUALITY = 90
+"""JPEG quality: ~14 kB per noisy 320x240 view, mean abs error ~1.6 levels (StereoBM is unaffected)."""
+PAIR_WINDOW_S = 0.5
+"""A connection on one side joins the other side's connection opened less than this long ago."""
+HISTORY = 32
+"""Frames kept for a pair's slower side (about a second at 30 fps); beyond that the pair is reset."""
+SEND_BUFFER = 16_384
+"""SO_SNDBUF of a stream (the kernel doubles it): fixed, so a slow host's queue stays a few frames deep."""
+STEREO_CALIBRATION_FILE = "stereo_calibration.json"
+
+
+@dataclass
+class EncodedPair:
+    """One rendered pair: its number, twin time, when it was published, and both views as JPEG."""
+
+    seq: int
+    t_s: float
+    published: float
+    jpeg: dict[str, bytes]
+    frame: StereoFrame
+
+
+@dataclass
+class _Pair:
+    """The connections of one host: both sides send the same frames in the same order."""
+
+    created: float
+    start: int
+    sides: set[str] = field(default_factory=set)
+    after: dict[int, int] = field(default_factory=dict)
+    """Frame sent after frame k (decided by the first side to move on from k)."""
+
+
+class _Snapshot:
+    """The world-like object SimStereo renders from: the model and a private copy of the twin's data."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+
+class CameraEmulator:
+    """The twin's two cameras as two MJPEG-over-HTTP streams at `rate_hz`."""
+
+    def __init__(
+        self,
+        twin: RealTimeTwin,
+        *,
+        rate_hz: float | None = None,
+        quality: int = DEFAULT_QUALITY,
+        noise: bool = True,
+        seed: int = 0,
+        on_event: Callable[[str], None] | None = None,
+    ) -> None:
+        stereo = twin.backend.stereo
+        if stereo is None:
+            raise ConfigError("the twin has no cameras: build its SimBackend with stereo=True")
+        if rate_hz is not None and not rate_hz > 0:
+            raise ConfigError(f"camera emulator rate_hz must be > 0, got {rate_hz}")
+        if not 1 <= quality <= 100:
+            raise ConfigError(f"camera emulator JPEG quality must be in [1, 100], got {quality}")
+        self.twin = twin
+        self.config = stereo.config
+        self.rate_hz = float(rate_hz or self.config.rate_hz)
+        self.quality = int(quality)
+        self.noise = noise
+        self.seed = seed
+        self.on_event = on_event or (lambda _msg: None)
+        self.stop_event = threading.Event()
+        self.error: BaseException | None = None
+        """What stopped the render thread, if it failed (the streams then end)."""
+        self.addresses: dict[str, str] = {}
+        self.frames = 0
+        """Pairs rendered and published."""
+        self.sent = dict.fromkeys(SIDES, 0)
+        """Frames sent on each side (all connections)."""
+        self.render_s: list[float] = []
+        self.encode_s: list[float] = []
+        self.lock_s: list[float] = []
+        """Per pair: render of both views, JPEG encode of both, time the twin's lock was held (last 300)."""
+        self._cond = threading.Condition()
+        self._history: dict[int, EncodedPair] = {}
+        self._latest: EncodedPair | None = None
+        self._pairs: list[_Pair] = []
+        self._server: ThreadingHTTPServer | None = None
+        self._threads: list[threading.Thread] = []
+        self._ready = threading.Event()
+
+    # --- life cycle -------------------------------------------------------------------------
+
+    def serve_http(self, port: int = 0, host: str = "127.0.0.1") -> tuple[str, str]:
+        """Start rendering and listen on host:port (0: a free port); returns the left and right URLs.
+
+        Returns once the first pair is published, so a capture opened next gets a frame at once."""
+        if self._server is not None:
+            raise RuntimeError("the camera emulator is already serving")
+        server = _Server((host, port), _Handler)
+        server.emulator = self
+        self._server = server
+        render = threading.Thread(target=self._render_loop, name="camera-render", daemon=True)
+        serve = threading.Thread(target=server.serve_forever, args=(0.1,), name="camera-http", daemon=True)
+        self._threads = [render, serve]
+        render.start()
+        serve.start()
+        if not self._ready.wait(timeout=30.0) or self.error is not None:
+            self.close()
+            raise RuntimeError(f"the camera emulator could not render: {self.error}")
+        bound = server.server_address[1]
+        self.addresses = {side: f"http://{host}:{bound}/{side}.mjpg" for side in SIDES}
+        return self.addresses["left"], self.addresses["right"]
+
+    def close(self) -> None:
+        """Stop rendering, end every stream and release the port (a capture's next grab fails)."""
+        self.stop_event.set()
+        with self._cond:
+            self._cond.notify_all()
+        server, self._server = self._server, None
+        if server is not None:
+            server.shutdown()
+            server.close_connections()
+            server.server_close()
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+
+    def __enter__(self) -> CameraEmulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def write_calibration(self, directory: Path) -> Path:
+        """The twin's ground-truth stereo calibration as a JSON file in `directory` (what a lab's
+        calibration would give for these cameras); returns its path."""
+        directory.mkdir(parents=True, exist_ok=True)
+        with self.twin.lock:
+            calibration = self.twin.backend.stereo.calibration()
+        return calibration.save(directory / STEREO_CALIBRATION_FILE)
+
+    # --- rendering --------------------------------------------------------------------------
+
+    def _render_loop(self) -> None:
+        from twin.sim.cameras import SimStereo
+
+        try:
+            world = self.twin.backend.world
+            snapshot = _Snapshot(world.model)
+            config = self.config if self.noise else _without_noise(self.config)
+            stereo = SimStereo(snapshot, config, np.random.default_rng([self.seed, 3]))  # type: ignore[arg-type]
+            stereo.connect()  # this thread's GL context
+        except BaseException as exc:
+            self.error = exc
+            self._ready.set()
+            return
+        period = 1.0 / self.rate_hz
+        next_t = time.monotonic()
+        try:
+            while not self.stop_event.is_set():
+                self._publish(self._render_pair(world, snapshot, stereo))
+                self._ready.set()
+                next_t += period
+                if next_t < time.monotonic() - period:  # fell behind (a busy host): no burst
+                    next_t = time.monotonic()
+                if self.stop_event.wait(max(0.0, next_t - time.monotonic())):
+                    break
+        except BaseException as exc:  # report and end the streams: a host sees the camera stop
+            self.error = exc
+            self.on_event(f"camera render failed: {exc}")
+            self.stop_event.set()
+            with self._cond:
+                self._cond.notify_all()
+        finally:
+            self._ready.set()
+            stereo.disconnect()
+
+    def _render_pair(self, world: Any, snapshot: _Snapshot, stereo: Any) -> EncodedPair:
+        t0 = time.perf_counter()
+        with self.twin.lock:  # only the copy: rendering reads the copy, the twin steps on
+            mujoco.mj_copyData(snapshot.data, world.model, world.data)
+        t1 = time.perf_counter()
+        frame = stereo.read()
+        t2 = time.perf_counter()
+        jpeg = {side: self.encode(getattr(frame, side)) for side in SIDES}
+        t3 = time.perf_counter()
+        for store, value in ((self.lock_s, t1 - t0), (self.render_s, t2 - t1), (self.encode_s, t3 - t2)):
+            store.append(value)
+            del store[:-300]
+        return EncodedPair(self.frames + 1, frame.t_s, time.monotonic(), jpeg, frame)
+
+    def encode(self, rgb: NDArray[np.uint8]) -> bytes:
+        """One view as JPEG at the emulator's quality."""
+        params = [cv2.IMWRITE_JPEG_QUALITY, self.quality]
+        ok, data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), params)
+        if not ok:
+            raise RuntimeError("JPEG encoding failed")
+        return data.tobytes()
+
+    def _publish(self, pair: EncodedPair) -> None:
+        with self._cond:
+            self.frames = pair.seq
+            self._latest = pair
+            self._history[pair.seq] = pair
+            self._history.pop(pair.seq - HISTORY, None)
+            for p in self._pairs:
+                p.after.pop(pair.seq - HISTORY, None)
+            self._cond.notify_all()
+
+    @property
+    def latest(self) -> EncodedPair | None:
+        """The newest published pair."""
+        return self._latest
+
+    # --- streaming --------------------------------------------------------------------------
+
+    def _join(self, side: str) -> tuple[_Pair, int]:
+        """The pair a new connection on `side` belongs to, and the first frame it sends."""
+        now = time.monotonic()
+        with self._cond:
+            self._pairs = [p for p in self._pairs if p.sides or now - p.created < PAIR_WINDOW_S]
+            for p in reversed(self._pairs):
+                if side not in p.sides and now - p.created < PAIR_WINDOW_S and p.start in self._history:
+                    p.sides.add(side)
+                    return p, p.start
+            assert self._latest is not None
+            pair = _Pair(created=now, start=self._latest.seq, sides={side})
+            self._pairs.append(pair)
+            return pair, pair.start
+
+    def _leave(self, pair: _Pair, side: str) -> None:
+        with self._cond:
+            pair.sides.discard(side)
+            pair.created = 0.0 if not pair.sides else pair.created  # an emptied pair takes nobody new
+
+    def _next(self, pair: _Pair, sent: int) -> EncodedPair | None:
+        """The frame to send after `sent`: the pair's choice, else the newest (waiting for one)."""
+        with self._cond:
+            while not self.stop_event.is_set():
+                chosen = pair.after.get(sent)
+                if chosen is not None:
+                    return self._history.get(chosen)  # None: this side fell HISTORY frames behind
+                if self._latest is not None and self._latest.seq > sent:
+                    pair.after[sent] = self._latest.seq
+                    return self._latest
+                self._cond.wait(timeout=0.5)
+        return None
+
+    def stream(self, side: str, sock: socket.socket, write: Callable[[bytes], None]) -> str:
+        """Send `side`'s frames on one connection until the host leaves or the emulator stops."""
+        pair, seq = self._join(side)
+        self.on_event(f"{side} camera: client connected (frame {seq})")
+        try:
+            with self._cond:
+                frame = self._history.get(seq)
+            while frame is not None:
+                data = frame.jpeg[side]
+                head = f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(data)}\r\n\r\n"
+                write(head.encode() + data + b"\r\n")
+                self.sent[side] += 1
+                frame = self._next(pair, frame.seq)
+            return "stopped" if self.stop_event.is_set() else "fell behind"
+        except (OSError, ValueError):
+            return "closed"
+        finally:
+            self._leave(pair, side)
+            self.on_event(f"{side} camera: client left")
+
+
+def _without_noise(config: Any) -> Any:
+    import dataclasses
+
+    return dataclasses.replace(config, noise_std=0.0)
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    emulator: CameraEmulator
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._connections: set[socket.socket] = set()
+        self._conn_lock = threading.Lock()
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        with self._conn_lock:
+            self._connections.add(request)
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._conn_lock:
+                self._connections.discard(request)
+
+    def close_connections(self) -> None:
+        """Shut every open stream down (the host's next read sees the end of the stream)."""
+        with self._conn_lock:
+            for sock in self._connections:
+                with contextlib.suppress(OSError):
+                    sock.shutdown(socket.SHUT_RDWR)
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.0"
+    server: _Server
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+    def do_GET(self) -> None:
+        emulator = self.server.emulator
+        side = self.path.split("?", 1)[0].strip("/").removesuffix(".mjpg")
+        if side not in SIDES:
+            body = b"twin camera emulator: /left.mjpg and /right.mjpg (MJPEG streams)\n"
+            self.send_response(404 if self.path not in ("/", "") else 200)
+            self.send_header("Content-Type", "text/plain")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+            return
+        self.send_response(200)
+        self.send_header("Content-Type", f"multipart/x-mixed-replace;boundary={BOUNDARY}")
+        self.send_header("Cache-Control", "no-cache")
+        self.send_header("Connection", "close")
+        self.end_headers()
+        sock = self.connection
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)  # no autotuning: bounded queue
+        sock.settimeout(None)  # a host that stops reading stalls its own stream, as a camera would wait
+
+        def write(data: bytes) -> None:
+            self.wfile.write(data)
+            self.wfile.flush()
+
+        emulator.stream(side, sock, write)

@@ -1,0 +1,175 @@
+"""The camera emulator against the real driver: real sockets, real cv2.VideoCapture (FFMPEG), real
+MuJoCo rendering. The twin is not stepped unless a test says so, so every frame shows one state."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hardware.backend import HardwareBackend, WallClock
+from hardware.bh262.emulator import make_hand_emulator
+from hardware.cameras.driver import CameraMissingError, CameraTimeoutError, StereoCapture, StereoCaptureConfig
+from hardware.cameras.emulator import CameraEmulator
+from hardware.rig_config import STEREO_CALIBRATION, load_rig, rig_toml
+from hardware.rig_emulator import RigEmulator
+from twin.interface.devices import StereoFrame
+from twin.interface.errors import ConfigError
+from twin.sim.backend import SimBackend
+from twin.sim.cameras import LEFT_CAMERA, RIGHT_CAMERA
+from twin.sim.foam import get_object
+from twin.vision.calibration import StereoCalibration, StereoCalibrationError
+
+BITS = 12
+
+
+class MarkedCameraEmulator(CameraEmulator):
+    """Stamps the frame number in the top rows of both views (black/white blocks), so a test can
+    tell which frame each side delivered."""
+
+    def encode(self, rgb: np.ndarray) -> bytes:
+        rgb = rgb.copy()
+        number = self.frames + 1
+        for bit in range(BITS):
+            rgb[:8, bit * 16 : (bit + 1) * 16] = 255 if number >> bit & 1 else 0
+        return super().encode(rgb)
+
+
+def frame_number(rgb: np.ndarray) -> int:
+    return sum(1 << bit for bit in range(BITS) if rgb[4, bit * 16 + 8].mean() > 128)
+
+
+def capture(left: str, right: str, timeout_s: float = 1.0) -> StereoCapture:
+    config = StereoCaptureConfig(left=left, right=right, backend="ffmpeg", timeout_s=timeout_s)
+    return StereoCapture(config, WallClock())
+
+
+@pytest.fixture
+def hand():
+    """A twin with cameras, not stepped (its state stays the initial one)."""
+    emulator = make_hand_emulator("block", stereo=True)
+    yield emulator
+    emulator.close()
+
+
+def test_frames_match_the_twins_own_render_of_the_same_state(hand):
+    with CameraEmulator(hand.twin) as cameras:
+        left, right = cameras.serve_http()
+        cap = capture(left, right)
+        with cap:
+            frames = [cap.read() for _ in range(3)]
+        sizes = [len(cameras.latest.jpeg[side]) for side in ("left", "right")]
+    reference = SimBackend(get_object("block"), stereo=True)  # a fresh twin in the same initial state
+    with reference.stereo:
+        views = {"left": reference.stereo.render(LEFT_CAMERA), "right": reference.stereo.render(RIGHT_CAMERA)}
+    for frame in frames:
+        assert isinstance(frame, StereoFrame) and frame.left.shape == (240, 320, 3)
+        for side in ("left", "right"):
+            got = getattr(frame, side).astype(np.int16)
+            other = views["right" if side == "left" else "left"]
+            error = np.abs(got - views[side]).mean()  # sensor noise (std 2) and JPEG
+            assert error < 3.0, (side, error)
+            assert np.abs(got - other).mean() > 3 * error  # the views are not swapped
+    assert all(5_000 < size < 40_000 for size in sizes), sizes
+
+
+def test_pairs_arrive_in_step_at_the_rate_and_the_camera_stopping_is_a_clear_error(hand):
+    cameras = MarkedCameraEmulator(hand.twin)
+    left, right = cameras.serve_http()
+    cap = capture(left, right, timeout_s=0.5)
+    try:
+        cap.connect()
+        numbers, stamps = [], []
+        while len(numbers) < 45:
+            frame = cap.read()
+            numbers.append((frame_number(frame.left), frame_number(frame.right)))
+            stamps.append(frame.t_s)
+        rate_hz = (numbers[-1][0] - numbers[5][0]) / (stamps[-1] - stamps[5])  # frames made per second
+        assert all(a == b for a, b in numbers), numbers  # one physics state per pair
+        steps = np.diff([a for a, _ in numbers])
+        assert (steps == 1).mean() > 0.8, numbers  # read at the rate, (nearly) every frame arrives
+        assert 20.0 < rate_hz < 40.0, rate_hz
+        cameras.close()
+        start = time.monotonic()
+        with pytest.raises(CameraTimeoutError, match=r"no frame from the .*mjpg.*stopped streaming"):
+            for _ in range(3):  # at most a frame or two still in the socket
+                cap.read()
+        assert time.monotonic() - start < 3 * (0.5 + 0.5)
+    finally:
+        cap.disconnect()
+        cameras.close()
+    with pytest.raises(CameraMissingError, match="cannot open the left camera"):
+        capture(left, right).connect()
+
+
+def test_rig_file_stereo_section_round_trips(tmp_path: Path):
+    backend = SimBackend(None, stereo=True)
+    backend.stereo.calibration().save(tmp_path / "cal.json")
+    text = rig_toml(
+        "socket://127.0.0.1:1",
+        stereo=("http://h:1/left.mjpg", "http://h:1/right.mjpg"),
+        stereo_calibration="cal.json",
+    )
+    (tmp_path / "rig.toml").write_text(text)
+    rig = load_rig(tmp_path / "rig.toml")
+    assert rig.stereo.left == "http://h:1/left.mjpg" and rig.stereo.right == "http://h:1/right.mjpg"
+    assert rig.stereo.backend == "ffmpeg" and rig.stereo.rate_hz == 30.0
+    assert rig.calibration[STEREO_CALIBRATION] == tmp_path / "cal.json"
+    assert rig.to_json()["stereo"]["backend"] == "ffmpeg"
+    (tmp_path / "idx.toml").write_text('[stereo]\nleft = 0\nright = "1"\nbackend = "v4l2"\nrate_hz = 15\n')
+    rig = load_rig(tmp_path / "idx.toml")
+    assert (rig.stereo.left, rig.stereo.right, rig.stereo.rate_hz) == (0, 1, 15.0)
+    assert STEREO_CALIBRATION not in rig.calibration
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ('right = "r"', r"\[stereo\]\.left: missing"),
+        ("left = true\nright = 1", r"\[stereo\]\.left: expected a device index or a string"),
+        ('left = 0\nright = 1\nbackend = "dc1394"', r"\[stereo\]\.backend: 'dc1394' is not one of"),
+        ("left = 0\nright = 1\nrate_hz = 0", r"\[stereo\]: stereo rate_hz must be > 0"),
+        ('left = 0\nright = 1\nrate_hz = "fast"', r"\[stereo\]\.rate_hz: expected float"),
+        ("left = 0\nright = 1\nexposure = 3", r"\[stereo\]: unknown key\(s\) exposure"),
+        ('left = 0\nright = 1\ncalibration = "nope.json"', r"\[stereo\]\.calibration: .*nope\.json: no such"),
+        (
+            'left = 0\nright = 1\ncalibration = "bad.json"',
+            r"\[stereo\]\.calibration: .*bad\.json:1: not valid",
+        ),
+    ],
+)
+def test_bad_stereo_sections_are_refused_in_one_line(body: str, message: str, tmp_path: Path):
+    (tmp_path / "bad.json").write_text("{oops")
+    path = tmp_path / "rig.toml"
+    path.write_text(f"[stereo]\n{body}\n")
+    with pytest.raises(ConfigError, match=message) as info:
+        load_rig(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+    if "calibration" in body:
+        assert isinstance(info.value, StereoCalibrationError)
+
+
+def test_hardware_backend_reads_the_rig_emulators_cameras(tmp_path: Path):
+    with RigEmulator("block", cameras=True) as rig:
+        rig.serve("tcp:0")
+        rig_file = rig.write_rig_file(tmp_path / "rig.toml")
+        assert (tmp_path / "calibration" / "stereo_calibration.json").is_file()
+        backend = HardwareBackend(load_rig(rig_file))
+        assert isinstance(backend.stereo, StereoCapture)
+        backend.connect()
+        try:
+            frame = backend.stereo.read()
+            assert frame.left.shape == frame.right.shape == (240, 320, 3)
+            assert np.isfinite(frame.t_s)
+            files = backend.write_calibration(tmp_path / "run" / "calibration")
+            truth = StereoCalibration.load(files["stereo_calibration"])
+            assert truth.to_json() == rig.hand.twin.backend.stereo.calibration().to_json()
+            assert backend.diagnostics()["stereo_capture"]["pairs"] == 1
+            assert backend.metadata()["stereo_driver"]["backend"] == "ffmpeg"
+        finally:
+            backend.disconnect()
+    (tmp_path / "calibration" / "stereo_calibration.json").unlink()
+    with pytest.raises(StereoCalibrationError, match=r"stereo_calibration\.json: no such"):
+        load_rig(rig_file)

@@ -16,7 +16,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SECTIONS = ("realtime", "foam_discretization", "serial_cycle", "tactile_sensors")
+SECTIONS = (
+    "realtime",
+    "foam_discretization",
+    "serial_cycle",
+    "tactile_sensors",
+    "stereo_calibration",
+    "stereo_pipeline",
+    "stereo_run",
+)
 
 
 def machine() -> str:

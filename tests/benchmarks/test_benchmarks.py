@@ -56,3 +56,20 @@ def test_why_the_pads_bin_contact_forces():
     flex = rows["flexcomp foam"]
     assert flex["touch_grid_n"] < 0 and flex["touch_grid_cells"] == 0  # flex contacts: wrong sign, no cell
     assert flex["tactile_nonzero"] == 0  # the native tactile sensor does not see a flexcomp
+
+
+def test_stereo_benchmarks_report_speed_accuracy_and_calibration():
+    from benchmarks import stereo_calibration, stereo_pipeline, stereo_run
+
+    pipeline = stereo_pipeline.run(quick=True)
+    (row,) = pipeline["speed"]["rows"]
+    assert row["fps"] > 0 and row["points"] > 1000
+    block = pipeline["accuracy"]["block"]
+    assert block["frames"] == 31 and block["median_mm"] < 1.5 and block["coverage"] > 0.6
+    assert "| block | 31 |" in stereo_pipeline.to_markdown(pipeline)
+    calibration = stereo_calibration.run(quick=True)
+    assert calibration["max"]["hand_translation_mm"] < 5 and calibration["max"]["hand_rotation_deg"] < 1
+    assert "| hand translation (mm) |" in stereo_calibration.to_markdown(calibration)
+    runs = stereo_run.run(quick=True)
+    assert [r["stereo_frames"] for r in runs["rows"]] == [61, 61]
+    assert all(r["rig_rtf"] > 0 and r["full_rtf"] > 0 and r["mb_per_min"] > 0 for r in runs["rows"])

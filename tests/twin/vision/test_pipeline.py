@@ -90,3 +90,19 @@ def test_corrupt_calibration_file_names_file_and_line(tmp_path: Path):
     result = twin("run", "compress", "--cameras", "--stereo-calibration", str(bad), "--out", str(out))
     assert result.returncode == 2 and f"{bad}:2:" in result.stderr, result.stderr
     assert not out.exists()
+
+
+def test_reconstruction_accuracy_against_the_twin_truth(camera_run: Path):
+    """Acceptance: the deforming block reconstructed within 1.5 mm (median) covering >= 60 % of its
+    visible surface, scored per frame against the true surface at that instant and summarized per run."""
+    run = open_run(camera_run)
+    truth = run.stream("stereo_truth")
+    assert len(truth) == len(run.stream("stereo"))
+    summary = run.metadata["stereo_truth"]
+    assert summary["frames"] == len(truth)
+    assert summary["median_mm"] <= 1.5 and summary["coverage"] >= 0.6, summary
+    grasped = truth.t_s > 2.5  # fingers closed on the foam, which they partly hide
+    assert grasped.sum() > 30
+    ok = (truth["median_mm"] <= 1.5) & (truth["coverage"] >= 0.6)
+    assert ok[grasped].mean() >= 0.9, (truth["median_mm"][grasped], truth["coverage"][grasped])
+    assert (truth["visible_px"][grasped] < truth["visible_px"][0]).all()  # the occlusion is real

@@ -79,6 +79,9 @@ class HandKinematics:
         self._taxel_body = np.array([m.body(LAYOUT.pads[p].body).id for p in LAYOUT.pad_index])
         self._taxel_pos = LAYOUT.position_m
         self._taxel_normal = LAYOUT.normal
+        self.posed = False
+        """Whether set_angles was called (before it: the open hand's zero pose)."""
+        mujoco.mj_kinematics(self.model, self.data)
 
     def set_angles(self, links_rad: ArrayLike, spread_rad: float) -> None:
         """Pose the hand: (3, 2) inner/outer angles of F1-F3 and the spread angle."""
@@ -88,6 +91,7 @@ class HandKinematics:
         d.qpos[self._outer] = links[:, 1]
         d.qpos[self._spread] = spread_rad
         mujoco.mj_kinematics(self.model, d)
+        self.posed = True
 
     def body_pose(self, body: str) -> NDArray[np.float64]:
         """4x4 pose of a body in the hand frame, at the last set_angles."""

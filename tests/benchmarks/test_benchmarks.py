@@ -65,8 +65,8 @@ def test_stereo_benchmarks_report_speed_accuracy_and_calibration():
     (row,) = pipeline["speed"]["rows"]
     assert row["fps"] > 0 and row["points"] > 1000
     block = pipeline["accuracy"]["block"]
-    assert block["frames"] == 31 and block["median_mm"] < 1.5 and block["coverage"] > 0.6
-    assert "| block | 31 |" in stereo_pipeline.to_markdown(pipeline)
+    assert block["frames"] == 11 and block["median_mm"] < 1.5 and block["coverage"] > 0.6
+    assert "| block | 11 |" in stereo_pipeline.to_markdown(pipeline)
     calibration = stereo_calibration.run(quick=True)
     assert calibration["max"]["hand_translation_mm"] < 5 and calibration["max"]["hand_rotation_deg"] < 1
     assert "| hand translation (mm) |" in stereo_calibration.to_markdown(calibration)

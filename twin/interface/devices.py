@@ -8,6 +8,7 @@ twin.units. This module imports no backend.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Self
 
@@ -177,3 +178,13 @@ class StereoCamera(Device):
     @abstractmethod
     def read(self) -> StereoFrame:
         """Grab both cameras, then retrieve both frames."""
+
+    def read_async(self) -> Future[StereoFrame]:
+        """The pair exposed now, delivered when ready: a device that can render or decode in the
+        background (the sim) lets the caller go on meanwhile; by default the pair is read now."""
+        future: Future[StereoFrame] = Future()
+        try:
+            future.set_result(self.read())
+        except Exception as exc:
+            future.set_exception(exc)
+        return future

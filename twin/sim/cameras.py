@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import mujoco
@@ -36,6 +37,8 @@ HAND_BODY = "palm"
 """The hand frame is the palm body's frame."""
 FOAM_NAME = "foam"
 """twin.sim.scene.FOAM_NAME (not imported: scene.py may import this module)."""
+RENDER_AHEAD = 3
+"""Pairs read_async may have in flight (snapshot buffers); a fourth waits for the oldest."""
 NOISE_BANK = 8
 """Pre-drawn noise fields a SimStereo shifts at random per view (see SimStereo._corrupt)."""
 CV_FROM_MUJOCO = np.diag([1.0, -1.0, -1.0])
@@ -202,6 +205,11 @@ class SimStereo(StereoCamera):
         self._rng = rng
         self._renderer: mujoco.Renderer | None = None
         self._noise: NDArray[np.int16] | None = None
+        self._render_thread: ThreadPoolExecutor | None = None
+        self._thread_renderer: mujoco.Renderer | None = None
+        self._snapshots: list[mujoco.MjData] = []
+        self._snapshot_jobs: list[Future | None] = []
+        self._next_snapshot = 0
         for name in (LEFT_CAMERA, RIGHT_CAMERA):
             world.model.camera(name)  # KeyError now rather than at connect() when the rig is missing
 
@@ -219,6 +227,47 @@ class SimStereo(StereoCamera):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._render_thread is not None:
+            self._render_thread.submit(self._close_thread_renderer).result()
+            self._render_thread.shutdown(wait=True)
+            self._render_thread = None
+
+    def read_async(self) -> Future[StereoFrame]:
+        """Snapshot the physics state now and render the pair on the camera's render thread, so the
+        world steps on while the (CPU) renderer works; the frame is the snapshot's, noised as read()."""
+        self._require_connection()
+        if self._render_thread is None:
+            self._render_thread = ThreadPoolExecutor(1, thread_name_prefix="sim-cameras")
+            self._snapshots = [mujoco.MjData(self.world.model) for _ in range(RENDER_AHEAD)]
+            self._snapshot_jobs = [None] * RENDER_AHEAD
+        k = self._next_snapshot
+        self._next_snapshot = (k + 1) % RENDER_AHEAD
+        if self._snapshot_jobs[k] is not None:
+            self._snapshot_jobs[k].result()  # its last pair is rendered: the buffer may be reused
+        snapshot = self._snapshots[k]
+        mujoco.mj_copyData(snapshot, self.world.model, self.world.data)
+        # The noise is drawn now, in call order, so a seed gives the same frames as read().
+        k_left, k_right = self._noise_draw(), self._noise_draw()
+        t_s = self.world.time_s
+        job = self._render_thread.submit(self._render_snapshot, snapshot, t_s, k_left, k_right)
+        self._snapshot_jobs[k] = job
+        return job
+
+    def _render_snapshot(
+        self, data: mujoco.MjData, t_s: float, k_left: tuple[int, int], k_right: tuple[int, int]
+    ) -> StereoFrame:
+        if self._thread_renderer is None:  # the GL context lives on this thread
+            c = self.config
+            w, h = (c.native_width, c.native_height) if self.render_native else (c.width, c.height)
+            self._thread_renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+        left = self._render_with(self._thread_renderer, data, LEFT_CAMERA)
+        right = self._render_with(self._thread_renderer, data, RIGHT_CAMERA)
+        return StereoFrame(t_s=t_s, left=self._add_noise(left, k_left), right=self._add_noise(right, k_right))
+
+    def _close_thread_renderer(self) -> None:
+        if self._thread_renderer is not None:
+            self._thread_renderer.close()
+            self._thread_renderer = None
 
     def calibration(self) -> StereoCalibration:
         """The ground-truth calibration of this pair now (the hand frame is the palm body)."""
@@ -228,29 +277,42 @@ class SimStereo(StereoCamera):
         """One noiseless view at the processed size, from the world's present state."""
         self._require_connection()
         assert self._renderer is not None
-        self._renderer.update_scene(self.world.data, camera=camera)
-        image = self._renderer.render()
+        return self._render_with(self._renderer, self.world.data, camera)
+
+    def _render_with(self, renderer: mujoco.Renderer, data: mujoco.MjData, camera: str) -> NDArray[np.uint8]:
+        renderer.update_scene(data, camera=camera)
+        image = renderer.render()
         c = self.config
         if image.shape[:2] != (c.height, c.width):
             image = cv2.resize(image, (c.width, c.height), interpolation=cv2.INTER_AREA)
         return image
 
-    def _corrupt(self, image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    def _noise_draw(self) -> tuple[int, int]:
+        """Which pre-drawn noise field, and by how much it is shifted, for the next view."""
+        c = self.config
+        if self._noise is None:
+            shape = (NOISE_BANK, c.height, c.width, 3)
+            fields = self._rng.standard_normal(shape, dtype=np.float32)
+            self._noise = np.rint(fields * np.float32(c.noise_std)).astype(np.int16)
+        return int(self._rng.integers(NOISE_BANK)), int(self._rng.integers(c.height * c.width * 3))
+
+    def _add_noise(self, image: NDArray[np.uint8], draw: tuple[int, int]) -> NDArray[np.uint8]:
         """Sensor noise: one of NOISE_BANK pre-drawn Gaussian fields, shifted by a random offset.
 
         Drawing 230k normals per view costs ~2 ms; shifting a pre-drawn field costs ~0.2 ms and is
         still white noise per pixel, independent between the views and across frames for practical
-        purposes (NOISE_BANK fields x H*W offsets). Deterministic for the backend's seed.
+        purposes (NOISE_BANK fields x H*W*3 offsets). Deterministic for the backend's seed.
         """
         if self.config.noise_std <= 0:
             return image
-        if self._noise is None or self._noise.shape[1:] != image.shape:
-            fields = self._rng.standard_normal((NOISE_BANK, *image.shape), dtype=np.float32)
-            self._noise = np.rint(fields * np.float32(self.config.noise_std)).astype(np.int16)
-        k = int(self._rng.integers(NOISE_BANK))
-        shift = int(self._rng.integers(image.size))
+        k, shift = draw
         noise = np.roll(self._noise[k].reshape(-1), shift).reshape(image.shape)
         return np.clip(image.astype(np.int16) + noise, 0, 255).astype(np.uint8)
+
+    def _corrupt(self, image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        if self.config.noise_std <= 0:
+            return image
+        return self._add_noise(image, self._noise_draw())
 
     def read(self) -> StereoFrame:
         """Both views of the same physics state (a hardware-triggered pair), noised, at sim time."""

@@ -176,7 +176,7 @@ class StereoPipeline:
 
     def tactile_points(self) -> NDArray[np.float64]:
         """(k, 3) hand-frame centres of the taxels pressed in the latest scan, at the latest hand pose."""
-        if self._pressure_kpa is None:
+        if self._pressure_kpa is None or not self.kinematics.posed:  # no scan, or no hand pose yet
             return np.zeros((0, 3))
         taxels, _ = self.kinematics.taxels()
         return pressed_taxels(self._pressure_kpa, taxels)

@@ -97,12 +97,12 @@ def test_reconstruction_accuracy_against_the_twin_truth(camera_run: Path):
     visible surface, scored per frame against the true surface at that instant and summarized per run."""
     run = open_run(camera_run)
     truth = run.stream("stereo_truth")
-    assert len(truth) == len(run.stream("stereo"))
+    assert len(truth) == 41 and truth.measured_rate_hz() == pytest.approx(10.0, rel=0.01)  # every 3rd
     summary = run.metadata["stereo_truth"]
     assert summary["frames"] == len(truth)
     assert summary["median_mm"] <= 1.5 and summary["coverage"] >= 0.6, summary
     grasped = truth.t_s > 2.5  # fingers closed on the foam, which they partly hide
-    assert grasped.sum() > 30
+    assert grasped.sum() > 10
     ok = (truth["median_mm"] <= 1.5) & (truth["coverage"] >= 0.6)
     assert ok[grasped].mean() >= 0.9, (truth["median_mm"][grasped], truth["coverage"][grasped])
     assert (truth["visible_px"][grasped] < truth["visible_px"][0]).all()  # the occlusion is real

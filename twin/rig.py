@@ -434,6 +434,7 @@ class Rig:
                 fused_points_hand=surface.fused.points_hand,
                 fused_triangles=surface.fused.triangles,
                 tactile_points_hand=surface.tactile_points_hand,
+                cloud_stride=2,
             )
 
     def _record(self, stream: str, t_s: float, values: dict) -> None:

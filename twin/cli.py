@@ -60,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
     )
     c.add_argument(
+        "--render-native",
+        action="store_true",
+        help="sim cameras: render at 640x480 and scale to 320x240 (slower) instead of at 320x240",
+    )
+    c.add_argument(
         "--stereo-calibration",
         type=Path,
         metavar="FILE",
@@ -181,7 +186,11 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
         from twin.sim.backend import SimBackend
 
         backend = SimBackend(
-            foam, seed=args.seed, stereo=args.cameras, stereo_calibration_file=args.stereo_calibration
+            foam,
+            seed=args.seed,
+            stereo=args.cameras,
+            stereo_render_native=args.render_native,
+            stereo_calibration_file=args.stereo_calibration,
         )
     else:
         from hardware.backend import HardwareBackend

@@ -215,7 +215,7 @@ class Rig:
         self._stereo_sampled = 0
         self.stop_reason: str | None = None
         self._vision: ThreadPoolExecutor | None = None
-        self._stereo_jobs: deque[tuple[StereoFrame, Future]] = deque()
+        self._stereo_jobs: deque[Future] = deque()
         self.surface_scores: list[dict] = []
         """Per stereo frame, the reconstruction scored against the twin's truth (sim only)."""
         hand_spec = backend.hand.spec
@@ -396,27 +396,27 @@ class Rig:
     def _deliver_stereo(self, payload: tuple[Future[StereoFrame], object]) -> None:
         """Hand the pair to the vision worker (it runs beside the physics); record what it finished."""
         pending, truth = payload
-        frame = pending.result()
         pipeline = self.stereo_pipeline
         if self._vision is None:
             self._vision = ThreadPoolExecutor(1, thread_name_prefix="vision")
         self._record_stereo(wait=False)
-        job = self._vision.submit(self._process_frame, frame, pipeline.tactile_points(), truth)
-        self._stereo_jobs.append((frame, job))
+        # The worker waits for the pair itself: the rig never stalls on a frame still being rendered.
+        job = self._vision.submit(self._process_frame, pending, pipeline.tactile_points(), truth)
+        self._stereo_jobs.append(job)
 
     def _process_frame(
-        self, frame: StereoFrame, tactile_points: np.ndarray, truth: object
-    ) -> tuple[SurfaceFrame, dict | None]:
-        """On the vision worker: reconstruct and fuse, then score against the truth where known."""
+        self, pending: Future[StereoFrame], tactile_points: np.ndarray, truth: object
+    ) -> tuple[StereoFrame, SurfaceFrame, dict | None]:
+        """On the vision worker: take the pair, reconstruct and fuse, score against the truth if known."""
+        frame = pending.result()
         surface = self.stereo_pipeline.process(frame, tactile_points)
         r = surface.reconstruction
-        return surface, self.backend.score_surface(truth, r.points_hand, r.pixels)
+        return frame, surface, self.backend.score_surface(truth, r.points_hand, r.pixels)
 
     def _record_stereo(self, wait: bool) -> None:
         """Record finished frames in order (all of them when `wait`); a worker's error is raised here."""
-        while self._stereo_jobs and (wait or self._stereo_jobs[0][1].done()):
-            frame, job = self._stereo_jobs.popleft()
-            surface, score = job.result()
+        while self._stereo_jobs and (wait or self._stereo_jobs[0].done()):
+            frame, surface, score = self._stereo_jobs.popleft().result()
             self._record_surface(frame, surface)
             if score is not None:
                 self.surface_scores.append(score)

@@ -17,8 +17,8 @@ period apart. A grab that fails is counted apart (`failed_grabs`): a camera at t
 every retry, which is not a lost frame each time.
 
 The grabs run on a worker thread so a camera that blocks inside `grab()` cannot hang `read()`: it
-fails after the timeout with a one-line error naming the camera. The frame config is local to this
-module (`StereoCaptureConfig`); twin.interface.stereo_spec.StereoConfig is deliberately not used yet.
+fails after the timeout with a one-line error naming the camera. The capture config
+(`StereoCaptureConfig`) takes its frame defaults from twin.interface.stereo_spec.StereoConfig.
 This module never imports the simulator.
 """
 
@@ -42,6 +42,7 @@ from twin.interface.backend import Clock
 from twin.interface.devices import StereoCamera, StereoFrame
 from twin.interface.errors import ConfigError, DeviceError
 from twin.interface.specs import ChannelSpec, DeviceSpec
+from twin.interface.stereo_spec import StereoConfig
 
 BACKENDS: dict[str, int] = {
     "any": cv2.CAP_ANY,
@@ -90,6 +91,10 @@ def describe_source(source: Source, limit: int = 120) -> str:
     return repr(text)
 
 
+_FLEA2 = StereoConfig()
+"""The Flea2 pair's declared rate, delay and sizes, defined once (twin.interface.stereo_spec)."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class StereoCaptureConfig:
     """Sources, backend, sizes and timeout of the stereo capture (local to this driver for now)."""
@@ -100,15 +105,14 @@ class StereoCaptureConfig:
     A string of digits is taken as a device index."""
     backend: str = "any"
     """A key of BACKENDS: 'any', 'firewire', 'v4l2', 'gstreamer', 'ffmpeg' or 'images'."""
-    rate_hz: float = 30.0
-    """Expected frame rate (hardware_facts §5): the period that gap and pairing checks compare to."""
-    latency_s: float = 0.035
-    """Declared exposure-to-host delay (FireWire spreads a frame over its period)."""
-    native_width: int = 640
-    native_height: int = 480
+    rate_hz: float = _FLEA2.rate_hz
+    """Expected frame rate: the period that gap and pairing checks compare to."""
+    latency_s: float = _FLEA2.latency_s
+    native_width: int = _FLEA2.native_width
+    native_height: int = _FLEA2.native_height
     """Size requested from live cameras (the Flea2 readout)."""
-    width: int = 320
-    height: int = 240
+    width: int = _FLEA2.width
+    height: int = _FLEA2.height
     """Size of every delivered frame (the paper's real-time resolution)."""
     timeout_s: float = 1.0
     """read() fails when a camera gives no frame for this long."""

@@ -123,6 +123,9 @@ def tactile_stream_spec(rate_hz: float) -> StreamSpec:
     )
 
 
+MAX_STEREO_BACKLOG = 30
+"""Frames (1 s at 30 fps) the vision worker may fall behind before the rig waits for it: the pipeline
+runs at ~80-110 fps on one core, so only a starved machine gets here."""
 STEREO_TRUTH_EVERY = 3
 """Score every 3rd stereo frame against the truth (10 Hz at 30 fps): the segmentation render it
 needs costs ~3-5 ms of the main thread per frame."""
@@ -400,6 +403,8 @@ class Rig:
         if self._vision is None:
             self._vision = ThreadPoolExecutor(1, thread_name_prefix="vision")
         self._record_stereo(wait=False)
+        while len(self._stereo_jobs) >= MAX_STEREO_BACKLOG:  # a starved worker: bound the memory
+            self._record_stereo_oldest()
         # The worker waits for the pair itself: the rig never stalls on a frame still being rendered.
         job = self._vision.submit(self._process_frame, pending, pipeline.tactile_points(), truth)
         self._stereo_jobs.append(job)
@@ -416,11 +421,14 @@ class Rig:
     def _record_stereo(self, wait: bool) -> None:
         """Record finished frames in order (all of them when `wait`); a worker's error is raised here."""
         while self._stereo_jobs and (wait or self._stereo_jobs[0].done()):
-            frame, surface, score = self._stereo_jobs.popleft().result()
-            self._record_surface(frame, surface)
-            if score is not None:
-                self.surface_scores.append(score)
-                self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
+            self._record_stereo_oldest()
+
+    def _record_stereo_oldest(self) -> None:
+        frame, surface, score = self._stereo_jobs.popleft().result()
+        self._record_surface(frame, surface)
+        if score is not None:
+            self.surface_scores.append(score)
+            self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
 
     def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
         self._record("stereo", frame.t_s, surface.record())

@@ -1,4 +1,4 @@
-"""The `twin` command line: objects, run, info, view.
+"""The `twin` command line: objects, run, calibrate, emulate, info, compare, view.
 
 Bad input ends with one line on stderr and exit status 2; nothing is simulated or written first.
 """

@@ -307,8 +307,8 @@ class Rig:
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
             self.stop_reason = f"{type(exc).__name__}: {exc}"
             self._safe_stop()
-            with contextlib.suppress(Exception):  # keep what the vision worker finished; report exc
-                self._record_stereo(wait=False)
+            with contextlib.suppress(Exception):  # keep the frames already taken (<= the backlog)
+                self._record_stereo(wait=True)
             raise
         finally:
             if self._vision is not None:

@@ -132,3 +132,26 @@ def test_runs_with_cameras_are_deterministic_for_a_seed():
     first, second, other = scores(3), scores(3), scores(4)
     assert len(first) == 26 and first == second
     assert first != other  # the seed reaches the cameras' noise
+
+
+def test_ctrl_c_keeps_the_frames_the_vision_worker_finished(tmp_path: Path):
+    import signal
+    import time
+
+    out = tmp_path / "run"
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    cmd = [*TWIN, "run", "compress", "--cameras", "--duration", "120", "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (out / "streams" / "stereo.arrows").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    run = open_run(out)
+    assert run.status == "interrupted" and not run.truncated
+    stereo, hand = run.stream("stereo"), run.stream("hand")
+    assert len(stereo) > 20 and abs(len(stereo) - len(hand)) <= 2  # the backlog was recorded, not lost
+    assert np.all(np.diff(stereo.t_s) > 0)
+    assert run.metadata["stereo_truth"]["frames"] == len(run.stream("stereo_truth"))

@@ -107,6 +107,10 @@ def run_experiment(
             raise ConfigError(
                 f"--bbox {x},{y},{w},{h}: not a non-empty box inside the {width}x{height} image"
             )
+    stereo_pipeline = None
+    if backend.stereo is not None:  # calibration and box checked before anything is written
+        with tempfile.TemporaryDirectory() as tmp:
+            stereo_pipeline = _stereo_pipeline(backend, backend.write_calibration(Path(tmp)), stereo_box)
     check_output_dir(run_dir)
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())
@@ -128,7 +132,6 @@ def run_experiment(
                 calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
             )
             tactile_calibration = load_calibration(files) if backend.tactile is not None else None
-            stereo_pipeline = _stereo_pipeline(backend, files, stereo_box)
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
             rig = None
             try:

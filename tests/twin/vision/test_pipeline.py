@@ -155,3 +155,20 @@ def test_ctrl_c_keeps_the_frames_the_vision_worker_finished(tmp_path: Path):
     assert len(stereo) > 20 and abs(len(stereo) - len(hand)) <= 2  # the backlog was recorded, not lost
     assert np.all(np.diff(stereo.t_s) > 0)
     assert run.metadata["stereo_truth"]["frames"] == len(run.stream("stereo_truth"))
+
+
+def test_hardware_cameras_without_a_box_are_refused_before_anything_is_written(tmp_path: Path):
+    from hardware.rig_config import rig_toml
+    from twin.sim.backend import SimBackend
+
+    SimBackend(None, stereo=True).stereo.calibration().save(tmp_path / "stereo.json")
+    rig = tmp_path / "rig.toml"
+    rig.write_text(rig_toml("loop://", stereo=("0", "1"), stereo_calibration="stereo.json"))
+    out = tmp_path / "run"
+    result = twin(
+        "run", "compress", "--backend", "hardware", "--rig", str(rig), "--cameras", "--out", str(out)
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--bbox" in lines[0], result.stderr
+    assert not out.exists()

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeoutError
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -41,8 +41,8 @@ from numpy.typing import NDArray
 from twin.interface.backend import Clock
 from twin.interface.devices import StereoCamera, StereoFrame
 from twin.interface.errors import ConfigError, DeviceError
-from twin.interface.specs import ChannelSpec, DeviceSpec
-from twin.interface.stereo_spec import StereoConfig
+from twin.interface.specs import DeviceSpec
+from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
 
 BACKENDS: dict[str, int] = {
     "any": cv2.CAP_ANY,
@@ -157,25 +157,18 @@ class StereoCaptureConfig:
 
 
 def stereo_capture_spec(config: StereoCaptureConfig) -> DeviceSpec:
-    """The declared channels: left and right (H, W, 3) uint8 RGB frames at the processed size."""
-
-    def channel(side: str) -> ChannelSpec:
-        return ChannelSpec(
-            unit="level",
-            shape=(config.height, config.width, 3),
-            dtype="uint8",
-            saturation=(0, 255),
-            description=f"{side} Flea2 frame, RGB, {config.width}x{config.height} "
-            f"(native {config.native_width}x{config.native_height})",
-        )
-
-    return DeviceSpec(
-        name="stereo",
+    """The declared channels: left and right (H, W, 3) uint8 RGB frames at the processed size (the
+    shared stereo spec; the noise of real cameras is not declared: 0)."""
+    frames = StereoConfig(
         rate_hz=config.rate_hz,
         latency_s=config.latency_s,
-        description="two Point Grey Flea2 on cv2.VideoCapture",
-        channels={"left": channel("left"), "right": channel("right")},
+        native_width=config.native_width,
+        native_height=config.native_height,
+        width=config.width,
+        height=config.height,
+        noise_std=0.0,
     )
+    return replace(stereo_device_spec(frames), description="two Point Grey Flea2 on cv2.VideoCapture")
 
 
 @dataclass

@@ -58,6 +58,7 @@ def test_why_the_pads_bin_contact_forces():
     assert flex["tactile_nonzero"] == 0  # the native tactile sensor does not see a flexcomp
 
 
+@pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
 def test_stereo_benchmarks_report_speed_accuracy_and_calibration():
     from benchmarks import stereo_calibration, stereo_pipeline, stereo_run
 

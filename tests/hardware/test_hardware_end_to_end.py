@@ -54,6 +54,7 @@ def _emulate_rig(tmp_path: Path, *extra: str):
     proc.wait(timeout=10)
 
 
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_with_cameras: Path, tmp_path):
     """The whole rig against emulators: hand, pads and the cameras' MJPEG streams, one flag."""
     hw = twin(
@@ -72,6 +73,7 @@ def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_w
     assert (lo > [-0.045, -0.045, 0.07]).all() and (hi < [0.045, 0.045, 0.16]).all()
 
 
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     sim = twin("run", "compress", "--duration", "10", "--out", "sim", "--no-progress", cwd=tmp_path)
     assert sim.returncode == 0, sim.stderr

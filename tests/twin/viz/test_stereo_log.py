@@ -27,6 +27,8 @@ from twin.viz.rerun_log import (
     read_rrd_views,
 )
 
+pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
+
 FRAMES = 3
 MAX_BYTES_PER_FRAME = 250_000
 """Whole file / frames, blueprint and statics included: measured ~207 kB for 3 frames (~130 kB a frame

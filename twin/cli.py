@@ -77,6 +77,47 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_foam_overrides(c)
 
+    f = run_sub.add_parser("free", help="swing the empty hand's fingers (identifies eq. 4's hand terms)")
+    f.add_argument("--backend", choices=("sim", "hardware"), default="sim")
+    f.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
+    f.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
+    f.add_argument("--duration", type=float, default=20.0, metavar="S", help="run length (s)")
+    f.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
+    f.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
+    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    p = sub.add_parser(
+        "identify", help="eq. 4 per finger and the foam's Young's modulus, from a compress run"
+    )
+    p.add_argument("run_dir", type=Path, metavar="RUN", help="a `twin run compress` run directory")
+    p.add_argument(
+        "--free", type=Path, metavar="FREE_RUN", help="a `twin run free` run: the hand's own terms"
+    )
+    p.add_argument("--model", choices=("kelvin-voigt", "hunt-crossley"), default="kelvin-voigt")
+    p.add_argument("--json", action="store_true", help="also print the results file")
+    p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/identify)")
+    p.add_argument("--shape", choices=("block", "cylinder", "sphere"), help="object shape (hardware runs)")
+    p.add_argument(
+        "--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="object extents (hardware runs)"
+    )
+
+    p = sub.add_parser("fit", help="fit the twin's foam to a run by replaying its commands (real-to-sim)")
+    p.add_argument(
+        "run_dir", type=Path, metavar="RUN", help="a run directory (sim or hardware) with commands"
+    )
+    p.add_argument(
+        "--params",
+        nargs="+",
+        choices=("young_pa", "damping", "poisson"),
+        default=["young_pa", "damping", "poisson"],
+        help="foam parameters to fit",
+    )
+    p.add_argument("--workers", type=int, default=2, help="replays in parallel (processes)")
+    p.add_argument("--young", type=float, metavar="PA", help="first guess of E (default: scan the range)")
+    p.add_argument("--json", action="store_true", help="also print the results file")
+    p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/fit)")
+    p.add_argument("--no-progress", action="store_true", help="no progress line")
+
     p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
     p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
     p.add_argument("--baud", type=int, default=9600, help="rate the hand powers up at (default 9600)")
@@ -223,6 +264,124 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
     if truth:
         print(f"reconstruction vs the twin's truth: {_surface_summary(truth)}")
     print(f"view it: twin view {outcome.run_dir}")
+    return 0
+
+
+def _hand_backend(args: argparse.Namespace, foam):  # noqa: ANN001
+    """The backend of a run without cameras: the twin with `foam`, or the rig's hardware."""
+    if args.backend == "sim":
+        if args.hand or args.rig:
+            raise ConfigError("--hand and --rig need --backend hardware")
+        from twin.sim.backend import SimBackend
+
+        return SimBackend(foam, seed=args.seed)
+    from hardware.backend import HardwareBackend
+    from hardware.rig_config import RigConfig, load_rig
+
+    rig = load_rig(args.rig) if args.rig else RigConfig()
+    if args.hand:
+        rig = rig.with_hand_port(args.hand)
+    backend = HardwareBackend(rig)
+    backend.stereo = None
+    return backend
+
+
+def cmd_run_free(args: argparse.Namespace) -> int:
+    """`twin run free`: the empty hand swings its fingers (eq. 4's hand terms)."""
+    from experiments.free_motion import run_free_motion
+    from twin.session import default_run_dir
+
+    run_dir = args.out or default_run_dir("free", "none")
+    backend = _hand_backend(args, None)
+    outcome = _with_progress(
+        args.duration,
+        not args.no_progress,
+        lambda progress: run_free_motion(backend, run_dir, duration_s=args.duration, progress=progress),
+    )
+    print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    print(f"use it: twin identify RUN --free {outcome.run_dir}")
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """`twin identify`: eq. 4 per finger, the modulus, and the files that show them."""
+    from twin.identify.identify import identify_run
+    from twin.identify.report import write_results
+
+    for path, flag in ((args.run_dir, "RUN"), (args.free, "--free")):
+        if path is not None and not (path / "run.json").is_file():
+            raise ConfigError(f"{flag} {path}: not a run directory (no run.json)")
+    if (args.shape is None) != (args.size_mm is None):
+        raise ConfigError("--shape and --size-mm go together")
+    size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
+    ident = identify_run(args.run_dir, args.free, args.model, shape=args.shape, size_m=size)
+    paths = write_results(ident, args.out or args.run_dir / "identify")
+    if args.json:
+        print(paths["results"].read_text(), end="")
+        return 0
+    for f in ident.fingers:
+        p = f.fit.params
+        model = ", ".join(f"{k} {v:.4g}" for k, v in p.items())
+        print(
+            f"F{f.finger}: {model}  (R^2 {f.fit.r2:.3f}, rms {f.fit.rms_n:.2f} N); "
+            f"secant {f.secant_n_m:.0f} N/m; "
+            f"moment arm {f.moment_arm_m * 1e3:.1f} mm; eq. 4 residual {f.eq4_residual_rms_nm:.3f} N*m"
+        )
+    m = ident.material
+    if m:
+        low, high = (v / 1e3 for v in m["ci95_pa"])
+        line = f"E = {m['young_pa'] / 1e3:.2f} kPa  (95 % {low:.2f}-{high:.2f} kPa)"
+        if "twin_young_pa" in m:
+            line += f"; the twin's E {m['twin_young_pa'] / 1e3:.2f} kPa, error {100 * m['error']:+.1f} %"
+        print(line)
+    for note in ident.notes:
+        print(f"note: {note}")
+    print(f"wrote {paths['results']}, {paths['figure'].name}, {paths['rerun'].name}")
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    """`twin fit`: the twin's foam parameters that reproduce a run, and the files that show them."""
+    from twin.sim.fit import fit_run
+    from twin.sim.fit_report import write_fit
+
+    if not (args.run_dir / "run.json").is_file():
+        raise ConfigError(f"RUN {args.run_dir}: not a run directory (no run.json)")
+    if args.workers < 1:
+        raise ConfigError("--workers must be >= 1")
+    if args.young is not None and not args.young > 0:
+        raise ConfigError("--young must be > 0 Pa")
+
+    def progress(replays: int, wall_s: float) -> None:
+        if not args.no_progress:
+            print(f"\r  {replays} replays, {wall_s:.0f} s", end="", file=sys.stderr, flush=True)
+
+    initial = {"young_pa": args.young} if args.young else None
+    result = fit_run(
+        args.run_dir, names=args.params, workers=args.workers, initial=initial, progress=progress
+    )
+    if not args.no_progress:
+        print(file=sys.stderr)
+    paths = write_fit(result, args.out or args.run_dir / "fit")
+    if args.json:
+        print(paths["results"].read_text(), end="")
+        return 0
+    for name in result.names:
+        line = f"{name}: {result.fitted[name]:.5g} (first guess {result.initial[name]:.4g})"
+        if not result.identifiable[name]:
+            line += "  not identifiable from this run"
+        if name in result.twin_truth:
+            truth = result.twin_truth[name]
+            line += f"; the twin's {truth:.4g}, error {100 * (result.fitted[name] / truth - 1):+.2f} %"
+        print(line)
+    print(
+        "rms "
+        + ", ".join(
+            f"{k} {result.rms_initial[k]:.3g} -> {result.rms_fitted[k]:.3g}" for k in result.rms_fitted
+        )
+    )
+    print(f"{result.evaluations} replays of {result.window_s:.1f} s in {result.wall_s:.0f} s")
+    print(f"wrote {paths['results']}, {paths['figure'].name}")
     return 0
 
 
@@ -472,10 +631,12 @@ def main(argv: list[str] | None = None) -> int:
         "view": cmd_view,
         "emulate": cmd_emulate,
         "compare": cmd_compare,
+        "identify": cmd_identify,
+        "fit": cmd_fit,
     }
     try:
         if args.command == "run":
-            return cmd_run_compress(args)
+            return cmd_run_free(args) if args.experiment == "free" else cmd_run_compress(args)
         if args.command == "calibrate":
             return cmd_calibrate_cameras(args)
         return handlers[args.command](args)

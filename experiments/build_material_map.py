@@ -1,0 +1,160 @@
+"""Build the material mapping (twin/identify/material_map.json) from compress runs of the twin.
+
+For each shape and size, runs `twin run compress` on a log grid of Young's moduli, identifies each
+run exactly as `twin identify` would, and fits ln E against the thumb's secant stiffness
+(twin.identify.material). To add a shape, or a size range for a new object:
+
+    python -m experiments.build_material_map --shape block --sizes-mm 50 60 70 --workers 2
+
+(a new shape is added to the stored mapping beside the others; its sizes replace that shape's).
+Check the printed leave-one-out error before trusting it: the mapping is only as good as the
+feature is monotone in E for that shape (see BENCHMARKS.md, identification).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve
+
+YOUNG_RANGE_PA = (8e3, 3.6e5)
+"""A little wider than the 1e4-3e5 Pa the mapping is for, so its ends are not extrapolated."""
+DURATION_S = 14.0
+"""Close and balance take ~3.5 s; the rest is 5 whole compression cycles at 0.5 Hz."""
+
+
+def sweep_run(
+    args: tuple[str, float, float, int, float, str],
+) -> tuple[str, float, float, int, dict[str, float]]:
+    """One compress run (sim) and its mapping features: (shape, size, E, seed, {feature: k})."""
+    shape, size_m, young_pa, seed, duration_s, out_dir = args
+    from experiments.compress import run_compress
+    from twin.identify.identify import THUMB, identify_run, material_features
+    from twin.sim.backend import SimBackend
+    from twin.sim.foam import LIBRARY
+
+    base = next(p for p in LIBRARY.values() if p.shape == shape)
+    foam = base.with_overrides(young_pa=young_pa, size_m=(size_m,) * 3)
+    run_dir = Path(out_dir) / f"{shape}-{size_m * 1e3:.0f}mm-{young_pa:.0f}Pa-s{seed}"
+    if not _complete(run_dir):  # resumable: a finished run is identified again, not re-run
+        if run_dir.exists():
+            import shutil
+
+            shutil.rmtree(run_dir)
+        run_compress(SimBackend(foam, seed=seed), run_dir, duration_s=duration_s, object_name=foam.name)
+    result = identify_run(run_dir, material_map=MaterialMap(curves={}, provenance={}))
+    features = {name: value for name, (value, _) in material_features(result.fingers[THUMB]).items()}
+    return shape, size_m, young_pa, seed, features
+
+
+def _log_mean(values: list[float]) -> float:
+    """Geometric mean of positive values; 0 if any is not positive (that grid point breaks the curve)."""
+    v = np.asarray(values, dtype=float)
+    return float(np.exp(np.mean(np.log(v)))) if (v > 0).all() else 0.0
+
+
+def _complete(run_dir: Path) -> bool:
+    import json
+
+    try:
+        return json.loads((run_dir / "run.json").read_text())["status"] == "complete"
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Sweep, fit, write."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--shape", default="sphere", choices=("block", "cylinder", "sphere"))
+    p.add_argument("--sizes-mm", type=float, nargs="+", default=[60.0, 65.0, 70.0, 75.0, 80.0])
+    p.add_argument("--points", type=int, default=16, help="moduli per size (log-spaced)")
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument(
+        "--seeds", type=int, default=2, help="noise seeds per grid point (stiffness averaged in log)"
+    )
+    p.add_argument("--out", type=Path, default=MAP_FILE)
+    p.add_argument(
+        "--keep-runs", type=Path, help="keep the sweep's runs here, and reuse those already there (resumable)"
+    )
+    args = p.parse_args(argv)
+
+    from rich.progress import Progress
+
+    grid = np.geomspace(*YOUNG_RANGE_PA, args.points)
+    with tempfile.TemporaryDirectory() as tmp:
+        out_dir = args.keep_runs or Path(tmp)
+        jobs = [
+            (args.shape, s / 1e3, float(e), seed, DURATION_S, str(out_dir))
+            for s in args.sizes_mm
+            for e in grid
+            for seed in range(args.seeds)
+        ]
+        results = []
+        with ProcessPoolExecutor(args.workers) as pool, Progress() as bar:
+            task = bar.add_task(f"{args.shape} sweep", total=len(jobs))
+            for r in pool.map(sweep_run, jobs):
+                results.append(r)
+                bar.advance(task)
+    curves = []
+    for s in args.sizes_mm:
+        for feature in FEATURES:
+            rows = [(e, f[feature]) for _, size, e, _, f in results if abs(size * 1e3 - s) < 1e-6]
+            young = np.unique([e for e, _ in rows])
+            per_e = [[k for e, k in rows if e == y] for y in young]
+            k = np.array([_log_mean(ks) for ks in per_e])
+            noise = np.array(
+                [np.std(np.log(ks), ddof=1) if len(ks) > 1 and min(ks) > 0 else 0.0 for ks in per_e]
+            )
+            try:
+                curve = fit_curve(s / 1e3, k, young, noise, feature)
+            except MappingError as exc:
+                print(f"build_material_map: {args.shape} {exc}; left out", file=sys.stderr)
+                continue
+            curves.append(curve)
+            lo, hi = curve.young_range_pa
+            print(
+                f"{args.shape} {s:g} mm, {feature}: valid {lo / 1e3:.0f}-{hi / 1e3:.0f} kPa "
+                "(monotone there), "
+                f"leave-one-out {100 * (np.exp(curve.loo_rms_log) - 1):.1f} % RMS, run-to-run "
+                f"{100 * np.median(curve.knots_noise_log_k):.1f} % (median)"
+            )
+    if not curves:
+        print(f"build_material_map: no size of {args.shape} could be mapped", file=sys.stderr)
+        return 1
+    try:
+        stored = MaterialMap.load(args.out) if args.out.exists() else MaterialMap(curves={}, provenance={})
+    except MappingError:
+        stored = MaterialMap(curves={}, provenance={})
+    provenance = {
+        "built_by": "python -m experiments.build_material_map "
+        + " ".join(argv if argv is not None else sys.argv[1:]),
+        "young_range_pa": list(YOUNG_RANGE_PA),
+        "points": args.points,
+        "seeds": args.seeds,
+        "duration_s": DURATION_S,
+        "procedure": "twin run compress defaults, sim backend, sensor noise on",
+    }
+    built = {round(s / 1e3, 9) for s in args.sizes_mm}
+    kept = [
+        c for c in stored.curves.get(args.shape, []) if round(c.size_m, 9) not in built
+    ]  # other sizes stay
+    merged = sorted(kept + curves, key=lambda c: (c.feature, c.size_m))
+    sizes_provenance = stored.provenance.get(args.shape, {}) | {
+        f"{s:g} mm": provenance for s in args.sizes_mm
+    }
+    mapping = MaterialMap(
+        curves=stored.curves | {args.shape: merged},
+        provenance=stored.provenance | {args.shape: sizes_provenance},
+    )
+    print(f"wrote {mapping.save(args.out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

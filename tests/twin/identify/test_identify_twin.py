@@ -1,0 +1,105 @@
+"""Eq. 4 identified on twin runs, checked against what the twin knows: its modulus, its contact
+forces, and the balance of torques at the distal joint."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.twin.identify.conftest import SPHERE_YOUNG_PA
+from twin.cli import main
+from twin.identify.hand_dynamics import identify_hand
+from twin.identify.identify import identify_run
+from twin.identify.signals import MissingStreamError, load_signals
+from twin.recording.reader import Run
+
+
+@pytest.fixture(scope="module")
+def ident(sphere_run, free_run):
+    return identify_run(sphere_run, free_run)
+
+
+def test_the_modulus_of_an_unseen_foam_is_recovered_within_its_interval(ident):
+    m = ident.material
+    assert m is not None and not m["extrapolated"]
+    assert abs(m["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10
+    assert m["ci95_pa"][0] < SPHERE_YOUNG_PA < m["ci95_pa"][1]
+    assert m["twin_young_pa"] == SPHERE_YOUNG_PA and m["error"] == pytest.approx(
+        m["young_pa"] / SPHERE_YOUNG_PA - 1
+    )
+
+
+def test_eq4_balances_at_the_distal_joint(ident, sphere_run):
+    """Strain-gauge torque less the hand's own terms equals the pads' moment about the distal joint."""
+    truth = Run(sphere_run).stream("truth")
+    for f in ident.fingers:
+        tau_ext = f.reaction_torque_n * f.moment_arm_m
+        assert f.eq4_residual_rms_nm < 0.15 * np.mean(np.abs(tau_ext)), f.finger
+        assert 0.005 < f.moment_arm_m < 0.047  # the pressure centre lies on the fingertip pad
+        # the pads' lumped force (eq. 6) against the twin's own contact force on the outer link
+        in_window = np.isin(truth.t_s, f.t_s)
+        true_force = truth["tip_contact_force_n"][in_window, f.finger - 1]
+        assert np.median(np.abs(f.reaction_tactile_n - true_force) / true_force) < 0.15, f.finger
+
+
+def test_the_reaction_model_follows_the_measured_force(ident):
+    for f in ident.fingers:
+        assert f.fit.r2 > 0.8 and f.secant_n_m > 0
+        assert np.sqrt(np.mean((f.reaction_model_n - f.reaction_tactile_n) ** 2)) == pytest.approx(
+            f.fit.rms_n
+        )
+    thumb = ident.fingers[2]
+    assert thumb.cycles >= 4 and thumb.delta_m.mean() > 0.001  # whole cycles, millimetres into the foam
+
+
+def test_hunt_crossley_fits_the_same_run(sphere_run):
+    hc = identify_run(sphere_run, model="hunt-crossley")
+    assert all(1.0 <= f.fit.params["n"] <= 3.0 and f.fit.r2 > 0.8 for f in hc.fingers)
+    assert "no free-motion run" in hc.notes[0]
+
+
+def test_free_motion_identifies_the_empty_hand(free_run):
+    signals = load_signals(free_run, need_tactile=False)
+    hand = identify_hand(signals)
+    swing = np.ptp(signals.outer_rad, axis=0)
+    assert (swing > 0.3).all()  # the fingers really swung (> 17 degrees of the distal joint)
+    for k in range(3):
+        assert hand.rms_nm[k] < 0.02  # the model explains the unloaded gauge to ~2 counts (eq. 2)
+        predicted = hand.torque_nm(signals)[:, k]
+        assert np.sqrt(np.mean((predicted - signals.torque_nm[:, k]) ** 2)) == pytest.approx(hand.rms_nm[k])
+
+
+def test_a_run_without_pads_is_refused_naming_the_stream(no_tactile_run, capsys):
+    with pytest.raises(MissingStreamError, match="no 'tactile' stream, which the reaction force R"):
+        identify_run(no_tactile_run)
+    assert main(["identify", str(no_tactile_run)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no 'tactile' stream" in err
+
+
+def test_cli_writes_results_figure_and_rerun_file(sphere_run, free_run, tmp_path, capsys):
+    out = tmp_path / "ident"
+    assert main(["identify", str(sphere_run), "--free", str(free_run), "--json", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((out / "identify.json").read_text())
+    assert printed["material"]["shape"] == "sphere" and len(printed["fingers"]) == 3
+    assert printed["hand_terms"]["source"] == str(free_run)
+    assert (out / "identify.png").stat().st_size > 10_000
+    assert (out / "identify.rrd").stat().st_size > 1_000
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["identify", "/nonexistent/run"], "not a run directory"),
+        (["identify", "{run}", "--shape", "sphere"], "--shape and --size-mm go together"),
+        (
+            ["identify", "{run}", "--free", "/nonexistent/free"],
+            "--free /nonexistent/free: not a run directory",
+        ),
+    ],
+)
+def test_bad_identify_input_is_one_line(argv, message, sphere_run, capsys):
+    assert main([a.format(run=sphere_run) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err

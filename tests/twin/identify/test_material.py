@@ -1,0 +1,117 @@
+"""The material mapping: monotone spans, interpolation over stiffness and size, combining features,
+intervals, storage."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve, monotone_span
+
+SECANT, TANGENT = FEATURES
+
+
+def test_monotone_span_keeps_the_longest_rising_positive_run():
+    e = np.arange(8)
+    assert monotone_span(e, [0, 0, 1, 2, 3, 1, 2, 9]) == slice(2, 5)
+    span = monotone_span(e[:4], [4, 3, 2, 1])
+    assert span.stop - span.start == 1
+    assert monotone_span(e[::-1], [9, 2, 1, 3, 2, 1, 0, 0]) == slice(2, 5)  # sorted by E first
+
+
+def _law(feature: str, size_m: float, young: np.ndarray) -> np.ndarray:
+    """k = a d[mm] E^b: secant 0.05 E^0.8, tangent 0.2 E^0.6."""
+    a, b = (0.05, 0.8) if feature == SECANT else (0.2, 0.6)
+    return a * size_m * 1e3 * np.asarray(young) ** b
+
+
+def _map(sizes=(0.06, 0.08), noise=0.0) -> MaterialMap:
+    young = np.geomspace(1e4, 3e5, 12)
+    curves = [
+        fit_curve(s, _law(f, s, young), young, np.full(young.size, noise), f)
+        for s in sizes
+        for f in (SECANT, TANGENT)
+    ]
+    return MaterialMap(curves={"sphere": curves}, provenance={})
+
+
+def _features(size_m: float, young: float, rel_sigma: float = 0.0) -> dict:
+    return {
+        f: (float(_law(f, size_m, young)), rel_sigma * float(_law(f, size_m, young)))
+        for f in (SECANT, TANGENT)
+    }
+
+
+def test_a_smooth_law_is_inverted_on_and_between_sizes():
+    mapping = _map()
+    for size_m in (0.06, 0.07, 0.08):
+        for young in (1.3e4, 8.8e4, 2.2e5):
+            est = mapping.estimate("sphere", size_m, _features(size_m, young))
+            # exact on the grid sizes; between them the law is not linear in size, so within 3 %
+            assert est.young_pa == pytest.approx(young, rel=1e-3 if size_m != 0.07 else 0.03)
+            assert est.ci95_pa[0] < est.young_pa < est.ci95_pa[1]
+            assert not est.extrapolated and len(est.components) == 2
+
+
+def test_features_are_weighted_by_their_run_to_run_spread():
+    young = np.geomspace(1e4, 3e5, 12)
+    noisy_secant = fit_curve(0.07, _law(SECANT, 0.07, young), young, np.full(12, 0.2), SECANT)
+    quiet_tangent = fit_curve(0.07, _law(TANGENT, 0.07, young), young, np.full(12, 0.01), TANGENT)
+    mapping = MaterialMap(curves={"sphere": [noisy_secant, quiet_tangent]}, provenance={})
+    # the secant reads 30 % high: the quiet tangent dominates and the disagreement widens the interval
+    features = {
+        SECANT: (float(_law(SECANT, 0.07, 5e4)) * 1.3, 0.0),
+        TANGENT: (float(_law(TANGENT, 0.07, 5e4)), 0.0),
+    }
+    est = mapping.estimate("sphere", 0.07, features)
+    assert est.young_pa == pytest.approx(5e4, rel=0.02)
+    alone = mapping.estimate("sphere", 0.07, {TANGENT: features[TANGENT]})
+    assert est.ci95_pa[1] / est.ci95_pa[0] > alone.ci95_pa[1] / alone.ci95_pa[0] * 0.99
+
+
+def test_the_interval_widens_with_the_stiffness_uncertainty():
+    mapping = _map()
+    narrow = mapping.estimate("sphere", 0.06, _features(0.06, 1e5))
+    wide = mapping.estimate("sphere", 0.06, _features(0.06, 1e5, rel_sigma=0.1))
+    assert wide.ci95_pa[1] / wide.ci95_pa[0] > narrow.ci95_pa[1] / narrow.ci95_pa[0]
+    # inverse-variance of slopes 1/0.8 and 1/0.6 at 10 %: sigma ln E = 1 / sqrt(0.8^2 + 0.6^2) * 0.1 = 0.1
+    assert math.log(wide.ci95_pa[1] / wide.young_pa) == pytest.approx(1.96 * 0.1, rel=0.05)
+
+
+def test_objects_outside_the_mapping_get_one_clear_error():
+    mapping = _map()
+    with pytest.raises(MappingError, match=r"no material mapping for shape 'block'.*sphere 60-80 mm"):
+        mapping.estimate("block", 0.06, _features(0.06, 1e5))
+    with pytest.raises(MappingError, match="sphere of 90 mm: no feature maps here"):
+        mapping.estimate("sphere", 0.09, _features(0.09, 1e5))
+    with pytest.raises(MappingError, match="no feature maps here"):
+        mapping.estimate("sphere", 0.07, {SECANT: (-5.0, 0.0)})
+    assert mapping.estimate("sphere", 0.06, {SECANT: (1.0, 0.0)}).extrapolated
+
+
+def test_too_few_monotone_points_cannot_make_a_curve():
+    with pytest.raises(MappingError, match="only 3 grid points"):
+        fit_curve(0.07, [1, 2, 3, 1, 1.5, 1, 0.5], np.geomspace(1e4, 3e5, 7))
+
+
+def test_save_load_round_trip_and_corrupt_files(tmp_path):
+    mapping = _map(noise=0.03)
+    again = MaterialMap.load(mapping.save(tmp_path / "map.json"))
+    features = _features(0.07, 5e4)
+    assert again.estimate("sphere", 0.07, features) == mapping.estimate("sphere", 0.07, features)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"curves": {"sphere": [{"size_m": 0.07}]}}))
+    with pytest.raises(MappingError, match=r"bad\.json: not a readable material mapping"):
+        MaterialMap.load(bad)
+
+
+def test_the_stored_mapping_covers_the_library_sphere_over_the_issue_range():
+    mapping = MaterialMap.load(MAP_FILE)
+    curves = [c for c in mapping.curves["sphere"] if abs(c.size_m - 0.07) < 1e-9]
+    assert {c.feature for c in curves} == set(FEATURES)
+    assert (
+        min(c.young_range_pa[0] for c in curves) <= 1.2e4 and max(c.young_range_pa[1] for c in curves) >= 3e5
+    )
+    for c in curves:
+        assert np.all(np.diff(c.knots_log_k) > 0) and np.all(np.diff(c.knots_log_e) > 0)

@@ -1,0 +1,252 @@
+"""`twin identify`: eq. 4 on a recorded compress run, per finger, and the foam's modulus.
+
+Steps (paper §3.1 and §6.2):
+1. hand terms of eq. 4 from a free-motion run (twin.identify.hand_dynamics), or, without one, only the
+   loaded run's own no-load gauge offset (documented degraded mode: no inertia, damping or gravity);
+2. per finger: the contact onset (first fingertip reaction above CONTACT_FORCE_N, interpolated between
+   samples), the indentation delta from there along the pad normal, its rate;
+3. over whole compression cycles: the reaction model R(delta, delta_dot) fitted to the tactile R,
+   the same R recovered from the strain gauges through eq. 4 (tau - hand terms over the measured
+   moment arm) as a cross-check, and the secant stiffness mean R / mean delta;
+4. the thumb's secant and tangent stiffnesses through the material mapping: E with a 95 % interval.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from twin.identify.hand_dynamics import TERMS, HandDynamics, derivatives, identify_hand
+from twin.identify.material import MappingError, MaterialMap
+from twin.identify.reaction import IdentificationError, ReactionFit, fit_kelvin_voigt, fit_reaction
+from twin.identify.signals import CONTACT_FORCE_N, FingerSignals, load_signals
+
+WINDOW_SETTLE_S = 0.5
+"""Compression samples skipped after the grasp settles (the balance servo's last transient)."""
+DEFAULT_PERIOD_S = 2.0
+"""Cycle length when the run does not record its compression frequency (compress default 0.5 Hz)."""
+THUMB = 2
+"""F3, the finger whose secant stiffness the material mapping uses (twin.identify.material)."""
+BASELINE_S = 0.3
+"""Without a free-motion run, the gauge offset is the mean torque over the run's first 0.3 s (open hand)."""
+
+
+@dataclass
+class FingerResult:
+    """One finger's identification and the series behind it (window samples only)."""
+
+    finger: int
+    fit: ReactionFit
+    secant_n_m: float
+    secant_sigma_n_m: float
+    moment_arm_m: float
+    eq4_residual_rms_nm: float
+    onset_t_s: float
+    cycles: int
+    t_s: NDArray[np.float64]
+    delta_m: NDArray[np.float64]
+    rate_m_s: NDArray[np.float64]
+    reaction_tactile_n: NDArray[np.float64]
+    reaction_torque_n: NDArray[np.float64]
+    reaction_model_n: NDArray[np.float64]
+
+    def to_json(self) -> dict:
+        """Plain-JSON form for the results file."""
+        return {
+            "finger": self.finger,
+            "reaction_model": self.fit.to_json(),
+            "secant_stiffness_n_m": self.secant_n_m,
+            "secant_stiffness_sigma_n_m": self.secant_sigma_n_m,
+            "moment_arm_mm": self.moment_arm_m * 1e3,
+            "eq4_residual_rms_nm": self.eq4_residual_rms_nm,
+            "torque_vs_tactile_rms_n": float(
+                np.sqrt(np.mean((self.reaction_torque_n - self.reaction_tactile_n) ** 2))
+            ),
+            "contact_onset_t_s": self.onset_t_s,
+            "cycles": self.cycles,
+            "mean_indentation_mm": float(self.delta_m.mean() * 1e3),
+            "mean_reaction_n": float(self.reaction_tactile_n.mean()),
+        }
+
+
+@dataclass
+class Identification:
+    """Everything `twin identify` reports."""
+
+    run_path: Path
+    model: str
+    hand: HandDynamics
+    fingers: list[FingerResult]
+    material: dict | None
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        """The results file's content."""
+        return {
+            "run": str(self.run_path),
+            "model": self.model,
+            "hand_terms": self.hand.to_json(),
+            "fingers": [f.to_json() for f in self.fingers],
+            "material": self.material,
+            "notes": self.notes,
+        }
+
+
+def compression_window(signals: FingerSignals) -> tuple[NDArray[np.bool_], int]:
+    """Samples of whole compression cycles after the grasp settled, and how many cycles."""
+    compress = signals.phase_mask("compress")
+    if not compress.any():
+        raise IdentificationError(
+            f"{signals.run_path}: no 'compress' phase recorded "
+            "(identification needs a `twin run compress` run)"
+        )
+    t0 = signals.t_s[compress][0] + WINDOW_SETTLE_S
+    t_end = signals.t_s[compress][-1]
+    profile = signals.metadata.get("experiment", {}).get("profile", {})
+    period = 1.0 / profile["frequency_hz"] if profile.get("frequency_hz") else DEFAULT_PERIOD_S
+    cycles = int((t_end - t0) // period)
+    if cycles < 1:
+        raise IdentificationError(
+            f"{signals.run_path}: {t_end - t0:.1f} s of compression; identification needs one whole cycle "
+            f"({period:.1f} s) after the grasp settles (record a longer run)"
+        )
+    window = compress & (signals.t_s >= t0) & (signals.t_s < t0 + cycles * period)
+    return window, cycles
+
+
+def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
+    """Onset time, fingertip pad centre and normal at first contact, interpolated between samples."""
+    r = signals.reaction_n[:, finger]
+    over = np.flatnonzero(r > CONTACT_FORCE_N)
+    if not over.size:
+        raise IdentificationError(
+            f"{signals.run_path}: F{finger + 1}'s fingertip pad never read more than "
+            f"{CONTACT_FORCE_N} N: no contact"
+        )
+    i = int(over[0])
+    if i == 0:
+        return float(signals.t_s[0]), signals.tip_position_m[0, finger], signals.tip_normal[0, finger]
+    f = (CONTACT_FORCE_N - r[i - 1]) / (r[i] - r[i - 1])
+    p = signals.tip_position_m[i - 1, finger] + f * (
+        signals.tip_position_m[i, finger] - signals.tip_position_m[i - 1, finger]
+    )
+    t = signals.t_s[i - 1] + f * (signals.t_s[i] - signals.t_s[i - 1])
+    return float(t), p, signals.tip_normal[i - 1, finger]
+
+
+def _baseline_hand(signals: FingerSignals) -> HandDynamics:
+    early = signals.t_s < signals.t_s[0] + BASELINE_S
+    offset = signals.torque_nm[early].mean(axis=0)
+    params = [dict.fromkeys(TERMS, 0.0) | {"offset_nm": float(offset[k])} for k in range(3)]
+    sigma = [dict.fromkeys(TERMS, float("nan")) for _ in range(3)]
+    return HandDynamics(
+        params=params, sigma=sigma, rms_nm=[float("nan")] * 3, source="no-load offset of the run"
+    )
+
+
+def identify_run(
+    run: Path | str,
+    free_run: Path | str | None = None,
+    model: str = "kelvin-voigt",
+    material_map: MaterialMap | None = None,
+    *,
+    shape: str | None = None,
+    size_m: tuple[float, float, float] | None = None,
+) -> Identification:
+    """Identify eq. 4 and the modulus from a compress run (and optionally a free-motion run).
+
+    `shape` and `size_m` describe the object where the run does not (a hardware run)."""
+    signals = load_signals(run)
+    if shape is not None and size_m is not None:
+        signals.metadata = signals.metadata | {
+            "object": (signals.metadata.get("object") or {}) | {"shape": shape, "size_m": list(size_m)}
+        }
+    notes: list[str] = []
+    if free_run is not None:
+        hand = identify_hand(load_signals(free_run, need_tactile=False))
+    else:
+        hand = _baseline_hand(signals)
+        notes.append(
+            "no free-motion run (--free): eq. 4's hand terms are only the gauge's no-load offset; "
+            "inertia, damping and gravity are left out of the torque cross-check"
+        )
+    window, cycles = compression_window(signals)
+    hand_torque = hand.torque_nm(signals)
+    fingers = []
+    for k in range(3):
+        onset_t, p0, n0 = contact_reference(signals, k)
+        delta = (signals.tip_position_m[:, k] - p0) @ n0
+        rate, _ = derivatives(signals.t_s, delta[:, None])
+        rate = rate[:, 0]
+        r_tac = signals.reaction_n[window, k]
+        fit = fit_reaction(model, delta[window], rate[window], r_tac)
+        moment = signals.reaction_torque_nm[window, k]
+        arm = float(moment.sum() / r_tac.sum()) if r_tac.sum() > 0 else float("nan")
+        tau_ext = signals.torque_nm[window, k] - hand_torque[window, k]
+        per_cycle = np.array_split(np.flatnonzero(window), cycles)
+        secants = np.array([signals.reaction_n[i, k].mean() / delta[i].mean() for i in per_cycle])
+        secant = float(r_tac.mean() / delta[window].mean())
+        sigma = float(secants.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+        fingers.append(
+            FingerResult(
+                finger=k + 1,
+                fit=fit,
+                secant_n_m=secant,
+                secant_sigma_n_m=sigma,
+                moment_arm_m=arm,
+                eq4_residual_rms_nm=float(np.sqrt(np.mean((tau_ext - moment) ** 2))),
+                onset_t_s=onset_t,
+                cycles=cycles,
+                t_s=signals.t_s[window],
+                delta_m=delta[window],
+                rate_m_s=rate[window],
+                reaction_tactile_n=r_tac,
+                reaction_torque_n=tau_ext / arm,
+                reaction_model_n=fit.predict(delta[window], rate[window]),
+            )
+        )
+    material = _material(signals, fingers[THUMB], material_map, notes)
+    return Identification(signals.run_path, model, hand, fingers, material, notes)
+
+
+def material_features(thumb: FingerResult) -> dict[str, tuple[float, float]]:
+    """The thumb's stiffnesses the material mapping reads, each with its fit's 1-sigma (N/m)."""
+    kv = (
+        thumb.fit
+        if thumb.fit.model == "kelvin-voigt"
+        else fit_kelvin_voigt(thumb.delta_m, thumb.rate_m_s, thumb.reaction_tactile_n)
+    )
+    return {
+        "thumb_secant_n_m": (thumb.secant_n_m, thumb.secant_sigma_n_m),
+        "thumb_tangent_n_m": (kv.params["k_n_m"], kv.sigma["k_n_m"]),
+    }
+
+
+def _material(
+    signals: FingerSignals, thumb: FingerResult, material_map: MaterialMap | None, notes: list[str]
+) -> dict | None:
+    obj = signals.metadata.get("object") or {}
+    experiment_object = signals.metadata.get("experiment", {}).get("object")
+    if not obj.get("shape") or not obj.get("size_m"):
+        notes.append(
+            f"the run does not record the object's shape and size (object: {experiment_object}); "
+            "no modulus estimate"
+        )
+        return None
+    try:
+        mapping = material_map or MaterialMap.load()
+        estimate = mapping.estimate(obj["shape"], max(obj["size_m"]), material_features(thumb))
+    except MappingError as exc:
+        notes.append(f"no modulus estimate: {exc}")
+        return None
+    out = estimate.to_json()
+    if signals.metadata.get("backend") == "sim" and obj.get("young_pa"):
+        out["twin_young_pa"] = obj["young_pa"]  # the twin knows its material: report the error
+        out["error"] = estimate.young_pa / obj["young_pa"] - 1.0
+    if estimate.extrapolated:
+        notes.append("the thumb's stiffness lies outside the mapping's grid: the modulus is extrapolated")
+    return out

@@ -1,0 +1,311 @@
+"""From identified contact stiffnesses to the foam's Young's modulus, through a mapping built on the twin.
+
+The stiffness a finger feels is not a material constant: it depends on the object's shape and size
+and on where the grasp settles. So the mapping is empirical, built from twin runs of the same
+procedure over a grid of moduli and sizes per shape, with two noise seeds per point
+(experiments/build_material_map.py), and stored with the package (material_map.json).
+
+Its features are the thumb's (F3): the thumb alone opposes F1 and F2, so its contact neither rocks
+nor shares load (F1 and F2 trade force at 15 Hz on a held object).
+- secant stiffness, mean R / mean delta over whole cycles: steep in E on soft foams, but on stiff ones
+  it rides on where first contact is placed, which varies run to run;
+- tangent stiffness, the Kelvin-Voigt k over the 2 mm cycles: erratic on soft foams (the clutch may
+  not have broken away), steady to ~1 % on stiff ones.
+
+Per shape, size and feature: ln E against ln k, piecewise linear (so monotone) through the grid points
+over which k rises with E; between sizes, linear in size. (On a grid 18 % apart in E, a cubic (PCHIP)
+interpolant changed no estimate by more than its interval, and costs `twin identify` a 0.3 s import.)
+Each feature's variance in ln E is the curve's leave-one-out error plus its run-to-run spread (seeds)
+and the fit's own uncertainty, both carried through the curve's slope; features are combined by inverse variance, the interval
+widened by the Birge ratio when they disagree.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+MAP_FILE = Path(__file__).with_name("material_map.json")
+FEATURES = {
+    "thumb_secant_n_m": "F3 secant contact stiffness: mean R / mean delta over whole cycles (N/m)",
+    "thumb_tangent_n_m": "F3 tangent contact stiffness: Kelvin-Voigt k over the cycles (N/m)",
+}
+MIN_POINTS = 5
+Z95 = 1.96
+NOISE_SMOOTHING_KNOTS = 5
+"""Run-to-run spread from two seeds is itself noisy: pooled (RMS) over this many neighbouring knots,
+so one knot where the runs split (a clutch that breaks away in one seed only) widens its neighbourhood."""
+
+
+class MappingError(ValueError):
+    """No mapping covers the object (shape unknown, size or stiffness outside the built range)."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """ln E as a monotone interpolant of ln k for one shape, size and feature."""
+
+    size_m: float
+    feature: str
+    knots_log_k: tuple[float, ...]
+    knots_log_e: tuple[float, ...]
+    knots_noise_log_k: tuple[float, ...]
+    """Run-to-run standard deviation of ln k at each knot (0 where one seed was run)."""
+    loo_rms_log: float
+    """Leave-one-out RMS error of ln E over the grid (interior points)."""
+    young_range_pa: tuple[float, float]
+    """Moduli over which the sweep's stiffness rose monotonically: where the curve is valid."""
+
+    @property
+    def log_k_range(self) -> tuple[float, float]:
+        """The stiffness range of the grid (ln N/m)."""
+        return self.knots_log_k[0], self.knots_log_k[-1]
+
+    def log_e(self, log_k: float) -> float:
+        """ln E at ln k (the end segments extended beyond the grid)."""
+        return _interp(log_k, self.knots_log_k, self.knots_log_e)
+
+    def slope(self, log_k: float) -> float:
+        """d ln E / d ln k of the segment at ln k."""
+        x, y = self.knots_log_k, self.knots_log_e
+        i = int(np.clip(np.searchsorted(x, log_k) - 1, 0, len(x) - 2))
+        return (y[i + 1] - y[i]) / (x[i + 1] - x[i])
+
+    def noise_log_k(self, log_k: float) -> float:
+        """Run-to-run spread of ln k here (linear between knots, held beyond them)."""
+        return float(np.interp(log_k, self.knots_log_k, self.knots_noise_log_k))
+
+    def to_json(self) -> dict:
+        """Plain-JSON form."""
+        return {
+            "size_m": self.size_m,
+            "feature": self.feature,
+            "knots_log_k": list(self.knots_log_k),
+            "knots_log_e": list(self.knots_log_e),
+            "knots_noise_log_k": list(self.knots_noise_log_k),
+            "loo_rms_log": self.loo_rms_log,
+            "young_range_pa": list(self.young_range_pa),
+        }
+
+    @classmethod
+    def from_json(cls, c: dict) -> Curve:
+        """Inverse of to_json."""
+        return cls(
+            size_m=float(c["size_m"]),
+            feature=str(c["feature"]),
+            knots_log_k=tuple(map(float, c["knots_log_k"])),
+            knots_log_e=tuple(map(float, c["knots_log_e"])),
+            knots_noise_log_k=tuple(map(float, c["knots_noise_log_k"])),
+            loo_rms_log=float(c["loo_rms_log"]),
+            young_range_pa=(float(c["young_range_pa"][0]), float(c["young_range_pa"][1])),
+        )
+
+
+@dataclass(frozen=True)
+class MaterialEstimate:
+    """E with a 95 % confidence interval, and what each feature said."""
+
+    young_pa: float
+    ci95_pa: tuple[float, float]
+    shape: str
+    size_m: float
+    extrapolated: bool
+    components: list[dict] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        """Plain-JSON form for the results file."""
+        return {
+            "young_pa": self.young_pa,
+            "ci95_pa": list(self.ci95_pa),
+            "shape": self.shape,
+            "size_m": self.size_m,
+            "extrapolated": self.extrapolated,
+            "features": self.components,
+        }
+
+
+def _interp(x0: float, x: np.ndarray | tuple, y: np.ndarray | tuple) -> float:
+    """Piecewise-linear interpolation, the end segments extended beyond the knots."""
+    xs, ys = np.asarray(x, float), np.asarray(y, float)
+    i = int(np.clip(np.searchsorted(xs, x0) - 1, 0, len(xs) - 2))
+    return float(ys[i] + (ys[i + 1] - ys[i]) * (x0 - xs[i]) / (xs[i + 1] - xs[i]))
+
+
+def monotone_span(young_pa: np.ndarray, stiffness_n_m: np.ndarray) -> slice:
+    """The longest run of grid points (in E order) over which the stiffness is positive and strictly rises."""
+    k = np.asarray(stiffness_n_m, float)[np.argsort(young_pa)]
+    best, start = (0, 0), 0
+    for i in range(len(k) + 1):
+        if i == len(k) or not k[i] > 0 or (i > start and not k[i] > k[i - 1]):
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = i if i < len(k) and k[i] > 0 else i + 1
+    return slice(*best)
+
+
+def fit_curve(
+    size_m: float,
+    stiffness_n_m: np.ndarray,
+    young_pa: np.ndarray,
+    noise_log_k: np.ndarray | None = None,
+    feature: str = "thumb_secant_n_m",
+) -> Curve:
+    """One size's curve over the monotone part of its grid, with its leave-one-out error there.
+
+    `stiffness_n_m` per grid modulus (the geometric mean over seeds); `noise_log_k` the seeds'
+    standard deviation of ln k there (None: one seed)."""
+    order = np.argsort(young_pa)
+    young, k = np.asarray(young_pa, float)[order], np.asarray(stiffness_n_m, float)[order]
+    noise = np.zeros_like(k) if noise_log_k is None else np.nan_to_num(np.asarray(noise_log_k, float)[order])
+    span = monotone_span(young, k)
+    young, k, noise = young[span], k[span], noise[span]
+    if len(young) < MIN_POINTS:
+        raise MappingError(
+            f"{size_m * 1e3:.0f} mm, {feature}: the stiffness rises monotonically over only "
+            f"{len(young)} grid "
+            "points; cannot map"
+        )
+    half = NOISE_SMOOTHING_KNOTS // 2
+    noise = np.array(
+        [np.sqrt(np.mean(noise[max(0, i - half) : i + half + 1] ** 2)) for i in range(len(noise))]
+    )
+    x, y = np.log(k), np.log(young)
+    errors = []
+    for i in range(1, len(x) - 1):
+        keep = np.arange(len(x)) != i
+        errors.append(_interp(x[i], x[keep], y[keep]) - y[i])
+    return Curve(
+        size_m=float(size_m),
+        feature=feature,
+        knots_log_k=tuple(map(float, x)),
+        knots_log_e=tuple(map(float, y)),
+        knots_noise_log_k=tuple(map(float, noise)),
+        loo_rms_log=float(np.sqrt(np.mean(np.square(errors)))),
+        young_range_pa=(float(young[0]), float(young[-1])),
+    )
+
+
+@dataclass(frozen=True)
+class MaterialMap:
+    """Curves per shape (any sizes and features)."""
+
+    curves: dict[str, list[Curve]]
+    provenance: dict
+
+    @classmethod
+    def load(cls, path: Path = MAP_FILE) -> MaterialMap:
+        """Read the stored mapping."""
+        try:
+            raw = json.loads(Path(path).read_text())
+            curves = {
+                shape: sorted((Curve.from_json(c) for c in cs), key=lambda c: (c.feature, c.size_m))
+                for shape, cs in raw["curves"].items()
+            }
+        except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+            raise MappingError(
+                f"{path}: not a readable material mapping ({type(exc).__name__}: {exc})"
+            ) from None
+        return cls(curves=curves, provenance=raw.get("provenance", {}))
+
+    def save(self, path: Path = MAP_FILE) -> Path:
+        """Write the mapping as JSON."""
+        raw = {
+            "features": FEATURES,
+            "model": "ln E piecewise linear in ln k per shape, size and feature; linear in size; "
+            "features by inverse variance",
+            "provenance": self.provenance,
+            "curves": {shape: [c.to_json() for c in cs] for shape, cs in self.curves.items()},
+        }
+        Path(path).write_text(json.dumps(raw, indent=1) + "\n")
+        return Path(path)
+
+    def sizes(self, shape: str, feature: str) -> list[float]:
+        """Sizes (m) with a curve for this shape and feature."""
+        return sorted(c.size_m for c in self.curves.get(shape, []) if c.feature == feature)
+
+    def coverage(self) -> str:
+        """One line: which shapes and sizes the mapping covers."""
+        out = []
+        for shape, cs in sorted(self.curves.items()):
+            sizes = sorted({c.size_m for c in cs})
+            out.append(f"{shape} {sizes[0] * 1e3:.0f}-{sizes[-1] * 1e3:.0f} mm")
+        return "; ".join(out)
+
+    def estimate(
+        self, shape: str, size_m: float, features: Mapping[str, tuple[float, float]]
+    ) -> MaterialEstimate:
+        """E (Pa) and its 95 % interval for an object of this shape and size (its largest extent), from
+        feature values and their own 1-sigma: {feature: (k_n_m, sigma_n_m)}."""
+        if shape not in self.curves:
+            raise MappingError(
+                f"no material mapping for shape '{shape}' (the mapping covers {self.coverage()})"
+            )
+        parts = []
+        for feature, (k, k_sigma) in features.items():
+            part = self._feature_estimate(shape, size_m, feature, k, k_sigma)
+            if part is not None:
+                parts.append(part)
+        if not parts:
+            sizes = sorted({c.size_m for c in self.curves[shape]})
+            raise MappingError(
+                f"{shape} of {size_m * 1e3:.0f} mm: no feature maps here (sizes {sizes[0] * 1e3:.0f}-"
+                f"{sizes[-1] * 1e3:.0f} mm, positive stiffness needed)"
+            )
+        inside = [p for p in parts if not p["extrapolated"]]
+        used = inside or parts
+        w = np.array([1.0 / p["sigma_log"] ** 2 for p in used])
+        mu = np.array([p["log_e"] for p in used])
+        log_e = float(np.sum(w * mu) / np.sum(w))
+        sigma = math.sqrt(1.0 / np.sum(w))
+        if len(used) > 1:  # Birge ratio: widen when the features disagree beyond their sigmas
+            chi2 = float(np.sum(w * (mu - log_e) ** 2)) / (len(used) - 1)
+            sigma *= max(1.0, math.sqrt(chi2))
+        for p in parts:
+            p["used"] = p in used
+            p["young_pa"] = math.exp(p.pop("log_e"))
+        return MaterialEstimate(
+            young_pa=math.exp(log_e),
+            ci95_pa=(math.exp(log_e - Z95 * sigma), math.exp(log_e + Z95 * sigma)),
+            shape=shape,
+            size_m=size_m,
+            extrapolated=not inside,
+            components=parts,
+        )
+
+    def _feature_estimate(
+        self, shape: str, size_m: float, feature: str, k: float, k_sigma: float
+    ) -> dict | None:
+        curves = sorted((c for c in self.curves[shape] if c.feature == feature), key=lambda c: c.size_m)
+        if not curves or not k > 0 or not curves[0].size_m - 1e-6 <= size_m <= curves[-1].size_m + 1e-6:
+            return None
+        log_k = math.log(k)
+        sizes = np.array([c.size_m for c in curves])
+        j = int(np.clip(np.searchsorted(sizes, size_m - 1e-9) - 1, 0, max(len(curves) - 2, 0)))
+        pair = curves[j : j + 2] if len(curves) > 1 else curves * 2
+        span = pair[1].size_m - pair[0].size_m
+        w = 0.0 if span == 0 else float(np.clip((size_m - pair[0].size_m) / span, 0.0, 1.0))
+        used = [c for c, weight in zip(pair, (1 - w, w), strict=True) if weight > 1e-9]
+
+        def mix(f):  # noqa: ANN001
+            return (1 - w) * f(pair[0]) + w * f(pair[1])
+
+        log_e = mix(lambda c: c.log_e(log_k))
+        slope = mix(lambda c: c.slope(log_k))
+        rel = k_sigma / k if math.isfinite(k_sigma) else 0.0
+        noise = mix(lambda c: c.noise_log_k(log_k))
+        sigma_log = math.sqrt(mix(lambda c: c.loo_rms_log) ** 2 + slope**2 * (noise**2 + rel**2))
+        extrapolated = any(not (c.log_k_range[0] <= log_k <= c.log_k_range[1]) for c in used) or any(
+            not (c.young_range_pa[0] <= math.exp(log_e) <= c.young_range_pa[1]) for c in used
+        )
+        return {
+            "feature": feature,
+            "stiffness_n_m": k,
+            "log_e": log_e,
+            "sigma_log": max(sigma_log, 1e-6),
+            "extrapolated": extrapolated,
+        }

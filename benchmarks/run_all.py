@@ -24,6 +24,7 @@ SECTIONS = (
     "stereo_calibration",
     "stereo_pipeline",
     "stereo_run",
+    "identification",
 )
 
 

@@ -3,9 +3,11 @@
 Rollout-based least squares: each candidate (Young's modulus, elasticity damping, Poisson ratio) is
 a replay of the run's recorded commands (twin.sim.replay); the residuals are the measured minus the
 replayed finger counts, distal torques and fingertip forces, each scaled by its sensor's resolution.
-scipy's trust-region least squares drives the search; its Jacobian's finite-difference candidates
-are replayed in parallel processes (the clutch runs in Python between steps, so mujoco.rollout's
-native threads cannot run this model). A coarse scan over the modulus picks the start.
+The sum of squares has narrow valleys (first contact and breakaway move with the foam), so the
+search is a coarse-to-fine grid per parameter (modulus over its whole range first), then scipy's
+trust-region least squares polishes all parameters together. Every batch of candidates (a grid
+stage, a finite-difference Jacobian) is replayed in parallel processes: the clutch runs in Python
+between steps, so mujoco.rollout's native threads cannot run this model.
 
 Identifiability is judged by replaying, not by the formal covariance (the residuals are not white:
 first-contact timing and stick-slip make them so): a parameter moved 25 % either way from its fit
@@ -43,7 +45,12 @@ SCALE_TORQUE_NM = 0.0085
 SCALE_FORCE_N = 0.25
 FIT_CYCLES = 3
 """Compression cycles replayed after the grasp: enough to pin the modulus, few enough to be quick."""
-SCAN_POINTS = 6
+ZOOM_POINTS = 6
+"""Candidates per grid stage: three rounds of two parallel replays."""
+ZOOM_SPAN = {"young_pa": math.log(1.5), "poisson": 0.1, "damping": math.log(4.0)}
+"""Half-width of a zoom around the current best (search coordinates); the first modulus zoom spans
+the whole bound instead."""
+POLISH_EVALUATIONS = 8
 PROBE = 0.25
 """Relative move of each fitted parameter in the identifiability probe."""
 IDENTIFIABLE_RMS_RISE = 0.05
@@ -51,12 +58,23 @@ IDENTIFIABLE_RMS_RISE = 0.05
 START = {"young_pa": 4e4, "damping": 0.004, "poisson": 0.25}
 """Generic foam guesses, never the run's own values (on a sim run those are the truth being tested).
 The modulus is scanned over its range before the search unless an initial value is given."""
-FD_STEP = 0.02
-"""Finite-difference step in the search coordinates (2 % of a log parameter)."""
+FD_STEP = 0.01
+"""Finite-difference step of the final polish, in search coordinates (1 % of a log parameter)."""
 
 
 class FitError(ConfigError):
     """The run cannot be fitted (not a sim-describable run, no commands, nothing to fit)."""
+
+
+def _identified_young_pa(path: Path) -> float | None:
+    """E from `twin identify` (eq. 4 and the material mapping), or None where it cannot say."""
+    from twin.identify.identify import identify_run
+
+    try:
+        material = identify_run(path).material
+    except (ValueError, KeyError):  # no tactile, no compress phase, nothing to identify: scan instead
+        return None
+    return None if material is None or material["extrapolated"] else float(material["young_pa"])
 
 
 def foam_of_run(run: Run) -> FoamParams:
@@ -175,6 +193,8 @@ class FitResult:
     sensitivity: dict[str, float]
     """Residual RMS rise (fraction) when the parameter moves 25 % from its fit, the smaller of both ways."""
     identifiable: dict[str, bool]
+    start_from: str
+    """Where the modulus search started: 'identify' (its estimate), 'scan' (the whole range) or 'given'."""
     rms_initial: dict[str, float]
     rms_fitted: dict[str, float]
     evaluations: int
@@ -194,6 +214,7 @@ class FitResult:
             "sensitivity_rms_rise_at_25pct": self.sensitivity,
             "identifiable": self.identifiable,
             "initial": self.initial,
+            "start_from": self.start_from,
             "rms_initial": self.rms_initial,
             "rms_fitted": self.rms_fitted,
             "evaluations": self.evaluations,
@@ -235,6 +256,11 @@ def fit_run(
     commands = Commands.from_run(run, until_s=window)
     measured = Measured.from_run(run, commands)
     start = {n: START[n] for n in names} | (initial or {})
+    start_from = "given" if "young_pa" in (initial or {}) else "scan"
+    if "young_pa" in names and start_from == "scan":
+        identified = _identified_young_pa(run.path)  # twin identify's estimate, when the mapping covers it
+        if identified is not None:
+            start["young_pa"], start_from = identified, "identify"
     truth = {n: getattr(base, n) for n in names} if run.metadata.get("backend") == "sim" else {}
     lo = np.array([math.log(BOUNDS[n][0]) if n in LOG_PARAMS else BOUNDS[n][0] for n in names])
     hi = np.array([math.log(BOUNDS[n][1]) if n in LOG_PARAMS else BOUNDS[n][1] for n in names])
@@ -256,12 +282,40 @@ def fit_run(
         x0 = np.array([math.log(start[n]) if n in LOG_PARAMS else start[n] for n in names])
         x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
         x_initial = x0.copy()
-        if "young_pa" in names and "young_pa" not in (initial or {}):  # no prior: scan the modulus first
-            j = names.index("young_pa")
-            grid = np.linspace(lo[j] + 0.2, hi[j] - 0.2, SCAN_POINTS)
-            xs = [np.where(np.arange(len(names)) == j, g, x0) for g in grid]
-            costs = [float(np.sum(residuals(measured, r) ** 2)) for r in evaluate(xs)]
-            x0 = xs[int(np.argmin(costs))]
+
+        def cost(xs: list[NDArray]) -> list[float]:
+            return [float(np.sum(residuals(measured, r) ** 2)) for r in evaluate(xs)]
+
+        def zoom(x: NDArray, i: int, stages: int, points: int, full: bool) -> NDArray:
+            """Coarse-to-fine grid search of coordinate i, the grid's points replayed in parallel."""
+            a, b = (
+                (lo[i], hi[i])
+                if full
+                else (max(lo[i], x[i] - ZOOM_SPAN[names[i]]), min(hi[i], x[i] + ZOOM_SPAN[names[i]]))
+            )
+            best, best_cost = x, cost([x])[0]
+            for _ in range(stages):
+                grid = np.linspace(a, b, points)
+                xs = [np.where(np.arange(len(x)) == i, g, best) for g in grid]
+                costs = cost(xs)
+                k = int(np.argmin(costs))
+                if costs[k] < best_cost:
+                    best, best_cost = xs[k], costs[k]
+                step = grid[1] - grid[0]
+                a, b = max(lo[i], best[i] - step), min(hi[i], best[i] + step)
+            return best
+
+        # The objective has narrow valleys (first contact and breakaway shift with the foam), so a
+        # gradient method alone lands on their walls: grid-zoom each parameter, the modulus first
+        # and again after the others, then polish all together.
+        x = x0
+        order = [n for n in ("young_pa", "poisson", "young_pa", "damping") if n in names]
+        if order.count("young_pa") == 2 and len(set(order)) == 1 + ("damping" in order):
+            order.remove("young_pa")  # the second modulus pass only re-centres after the Poisson ratio
+        for pass_no, n in enumerate(order):
+            i = names.index(n)
+            first_e = n == "young_pa" and pass_no == 0 and start_from == "scan"
+            x = zoom(x, i, stages=4 if first_e else 3, points=ZOOM_POINTS, full=first_e)
 
         def fun(x: NDArray) -> NDArray:
             return residuals(measured, evaluate([x])[0])
@@ -279,7 +333,14 @@ def fit_run(
             return np.column_stack(cols)
 
         sol = least_squares(
-            fun, x0, jac=jac, bounds=(lo, hi), x_scale=1.0, diff_step=None, max_nfev=25, xtol=1e-4
+            fun,
+            x,
+            jac=jac,
+            bounds=(lo, hi),
+            x_scale=1.0,
+            diff_step=None,
+            max_nfev=POLISH_EVALUATIONS,
+            xtol=1e-4,
         )
         probes = []
         for i, n in enumerate(names):
@@ -308,6 +369,7 @@ def fit_run(
         fitted=fitted,
         sigma=sigma,
         sensitivity=rise,
+        start_from=start_from,
         identifiable={n: bool(rise[n] >= IDENTIFIABLE_RMS_RISE) for n in names},
         rms_initial=rms_by_channel(measured, sim_initial),
         rms_fitted=rms_by_channel(measured, sim_fitted),

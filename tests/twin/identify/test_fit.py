@@ -1,0 +1,66 @@
+"""Real-to-sim: replays of a run's commands reproduce it with the true foam, and the fit finds the
+modulus of a twin run it was not told."""
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.twin.identify.conftest import SPHERE_YOUNG_PA
+from twin.cli import main
+from twin.recording.reader import Run
+from twin.sim.fit import FitError, Measured, fit_run, fit_window_s, foam_of_run, residuals
+from twin.sim.replay import Commands, replay
+
+pytestmark = pytest.mark.xdist_group("realtime")  # two replay processes: keep off the wall-clock tests
+
+
+def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
+    run = Run(sphere_run)
+    commands = Commands.from_run(run, until_s=fit_window_s(run))
+    sim = replay(foam_of_run(run), commands)
+    measured = Measured.from_run(run, commands)
+    # open-loop replay of the recorded set points: counts within their quantization, torques within
+    # ~1 strain-gauge count (eq. 2: 0.0085 N*m), fingertip forces within the pads' noise
+    assert np.sqrt(np.mean((sim.position_counts - measured.position_counts) ** 2)) < 1.0
+    assert np.sqrt(np.mean((sim.torque_nm - measured.torque_nm) ** 2)) < 0.012
+    thumb = np.isfinite(measured.force_n[:, 1])
+    assert np.sqrt(np.mean((sim.tip_force_n[thumb, 2] - measured.force_n[thumb, 1]) ** 2)) < 0.25
+    # a foam 10 % stiffer is told apart
+    stiffer = replay(foam_of_run(run).with_overrides(young_pa=1.1 * SPHERE_YOUNG_PA), commands)
+    assert np.sum(residuals(measured, stiffer) ** 2) > 3 * np.sum(residuals(measured, sim) ** 2)
+
+
+def test_the_fit_finds_the_modulus_within_3_percent(sphere_run, tmp_path, capsys):
+    out = tmp_path / "fit"
+    argv = ["fit", str(sphere_run), "--params", "young_pa", "--no-progress", "--json", "--out", str(out)]
+    assert main(argv) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert abs(result["fitted"]["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.03
+    assert result["error"]["young_pa"] == pytest.approx(result["fitted"]["young_pa"] / SPHERE_YOUNG_PA - 1)
+    # it starts from `twin identify`'s estimate, never from the run's recorded (true) modulus
+    assert result["start_from"] == "identify" and result["initial"]["young_pa"] != SPHERE_YOUNG_PA
+    assert result["identifiable"]["young_pa"]
+    assert result["rms_fitted"]["position_counts"] < min(1.0, result["rms_initial"]["position_counts"])
+    assert (out / "fit.png").stat().st_size > 10_000
+
+
+def test_a_run_that_does_not_describe_its_object_cannot_be_fitted(free_run):
+    with pytest.raises(FitError, match="does not describe its object"):
+        fit_run(free_run)
+    with pytest.raises(FitError, match="unknown fit parameter"):
+        fit_run(free_run, names=("stiffness",))
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["fit", "/nonexistent/run"], "not a run directory"),
+        (["fit", "{run}", "--workers", "0"], "--workers must be >= 1"),
+        (["fit", "{run}", "--young", "-3"], "--young must be > 0 Pa"),
+    ],
+)
+def test_bad_fit_input_is_one_line(argv, message, sphere_run, capsys):
+    assert main([a.format(run=sphere_run) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err

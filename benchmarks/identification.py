@@ -90,6 +90,8 @@ def run(quick: bool = False) -> dict:
             result = fit_run(row["run"], workers=2)
             fits.append(
                 {
+                    "held": result.held,
+                    "start_from": result.start_from,
                     "size_mm": row["size_mm"],
                     "young_pa": row["young_pa"],
                     "fitted": result.fitted,
@@ -137,7 +139,7 @@ def _time_identify(tmp: Path, duration_s: float) -> dict:
 
 
 def _flag(identifiable: bool) -> str:
-    return "" if identifiable else " (not identifiable)"
+    return "" if identifiable else " (not identifiable: held at the description)"
 
 
 def _pct(x: float) -> str:
@@ -152,27 +154,31 @@ def to_markdown(results: dict) -> str:
     lines = [
         "## Identification against the twin's truth (sphere, unseen moduli, sensor noise on)",
         "",
-        f"`twin identify` (Kelvin-Voigt per finger, thumb secant stiffness through the stored mapping) on "
+        f"`twin identify` (Kelvin-Voigt per finger; the thumb's secant and tangent stiffness through the "
+        f"stored mapping) on "
         f"{len(acc)} runs of {DURATION_S:g} s at moduli the mapping has not seen: **median |E error| "
         f"{100 * np.median(errs):.1f} %, max {100 * errs.max():.1f} %**; the true E is inside the 95 % "
         f"interval in {sum(r['in_ci'] for r in acc)} of {len(acc)}.",
         "",
-        "| size | true E (kPa) | identified (kPa) | 95 % interval (kPa) | error | noise seed |",
-        "|---|---|---|---|---|---|",
+        "| size | true E (kPa) | identified (kPa) | 95 % interval (kPa) | error | noise seed | flagged |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in sorted(rows, key=lambda r: (r["size_mm"], r["young_pa"])):
         ci = r["ci95_pa"]
         tag = "" if r["size_mm"] in results["sizes"] else " (between mapping sizes)"
         lines.append(
             f"| {r['size_mm']:g} mm{tag} | {r['young_pa'] / 1e3:.1f} | {r['identified_pa'] / 1e3:.1f} | "
-            f"{ci[0] / 1e3:.1f}-{ci[1] / 1e3:.1f} | {_pct(r['error'])} | {r['seed']} |"
+            f"{ci[0] / 1e3:.1f}-{ci[1] / 1e3:.1f} | {_pct(r['error'])} | {r['seed']} | "
+            f"{'extrapolated' if r['extrapolated'] else ''} |"
         )
     fits = results["fits"]
     if fits:
         fe = np.abs([f["error"]["young_pa"] for f in fits])
         lines += [
             "",
-            f"`twin fit` (replays of the run's commands, trust-region least squares, 2 processes) "
+            f"`twin fit` (replays of the run's commands in 2 processes; the modulus from `twin identify`'s "
+            "estimate, the Poisson ratio and damping from the run's description of the object, each kept "
+            "only if a profile shows the run can tell it apart) "
             f"on {len(fits)} of "
             f"those runs: **median |E error| {100 * np.median(fe):.2f} %, max {100 * fe.max():.2f} %**; "
             f"wall time {min(f['wall_s'] for f in fits):.0f}-{max(f['wall_s'] for f in fits):.0f} s "
@@ -193,6 +199,8 @@ def to_markdown(results: dict) -> str:
     lines += [
         "",
         f"`twin identify` on a {t['run_s']:g} s run, whole command (process start to exit, including the "
-        f"figure and the Rerun file): **{t['wall_s']:.2f} s** (best of 3; limit 2 s).",
+        f"figure and the Rerun file): **{t['wall_s']:.2f} s** (best of 3; limit 2 s). "
+        f"`twin fit` on the same run, all three parameters, 2 processes: **{t['fit_wall_s']:.0f} s** (limit 180 s; it replays the grasp "
+        "and 3 cycles, whatever the run's length).",
     ]
     return "\n".join(lines) + "\n"

@@ -113,6 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="foam parameters to fit",
     )
     p.add_argument("--workers", type=int, default=2, help="replays in parallel (processes)")
+    p.add_argument("--object", help="library object to put in the twin, for runs that do not describe theirs")
+    p.add_argument(
+        "--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="with --object: its extents"
+    )
     p.add_argument("--young", type=float, metavar="PA", help="first guess of E (default: scan the range)")
     p.add_argument("--json", action="store_true", help="also print the results file")
     p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/fit)")
@@ -609,15 +613,17 @@ def cmd_view(args: argparse.Namespace) -> int:
     rrd = args.run_dir / RRD_NAME
     if not rrd.is_file():
         return _fail(f"no Rerun recording at {rrd}")
+    # analyses of the run (`twin identify`) log under the same recording id: the viewer merges them
+    files = [str(rrd), *sorted(str(p) for p in args.run_dir.glob("*/*.rrd"))]
     has_display = (
         sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
     )
     if not has_display:
-        print(f"No display here. Copy {rrd} to a machine with one and run `rerun {rrd.name}`,")
-        print(f"or serve it to a browser from here: `rerun --serve-web {rrd}`.")
+        print(f"No display here. Copy {' '.join(files)} to a machine with one and run `rerun FILES`,")
+        print(f"or serve them to a browser from here: `rerun --serve-web {' '.join(files)}`.")
         return 0
     viewer = shutil.which("rerun")
-    cmd = [viewer, str(rrd)] if viewer else [sys.executable, "-m", "rerun", str(rrd)]
+    cmd = [viewer, *files] if viewer else [sys.executable, "-m", "rerun", *files]
     return subprocess.call(cmd)
 
 

@@ -16,8 +16,8 @@ Per shape, size and feature: ln E against ln k, piecewise linear (so monotone) t
 over which k rises with E; between sizes, linear in size. (On a grid 18 % apart in E, a cubic (PCHIP)
 interpolant changed no estimate by more than its interval, and costs `twin identify` a 0.3 s import.)
 Each feature's variance in ln E is the curve's leave-one-out error plus its run-to-run spread (seeds)
-and the fit's own uncertainty, both carried through the curve's slope; features are combined by inverse variance, the interval
-widened by the Birge ratio when they disagree.
+and the fit's own uncertainty, both carried through the curve's slope; features are combined by
+inverse variance, the interval widened by the Birge ratio when they disagree.
 """
 
 from __future__ import annotations

@@ -9,10 +9,14 @@ trust-region least squares polishes all parameters together. Every batch of cand
 stage, a finite-difference Jacobian) is replayed in parallel processes: the clutch runs in Python
 between steps, so mujoco.rollout's native threads cannot run this model.
 
+The modulus starts from `twin identify`'s estimate (or a scan of its whole range); the other
+parameters start at the run's own description of the object, which on hardware is the researcher's.
 Identifiability is judged by replaying, not by the formal covariance (the residuals are not white:
-first-contact timing and stick-slip make them so): a parameter moved 25 % either way from its fit
-must raise the residual RMS by IDENTIFIABLE_RMS_RISE, or it is reported as not identifiable from
-the run. The fit still returns it, but it means little.
+first-contact timing and stick-slip make them so). Each other parameter is moved 25 % either way and
+the modulus allowed to follow (a profile): unless the residual RMS then rises by
+IDENTIFIABLE_RMS_RISE, the run cannot tell that parameter apart, and it is held at the description
+rather than traded against the modulus. From a compress run the Poisson ratio trades against the
+modulus along a valley (a 25 % change moves E ~8 %) and the elasticity damping barely shows.
 """
 
 from __future__ import annotations
@@ -51,13 +55,15 @@ ZOOM_SPAN = {"young_pa": math.log(1.5), "poisson": 0.1, "damping": math.log(4.0)
 """Half-width of a zoom around the current best (search coordinates); the first modulus zoom spans
 the whole bound instead."""
 POLISH_EVALUATIONS = 8
+PROFILE_SPAN = math.log(1.15)
+"""How far the modulus may follow a probed parameter: a 25 % Poisson move shifts it ~8 %."""
 PROBE = 0.25
 """Relative move of each fitted parameter in the identifiability probe."""
 IDENTIFIABLE_RMS_RISE = 0.05
 """A 25 % move must raise the residual RMS by 5 % for the parameter to count as identified."""
-START = {"young_pa": 4e4, "damping": 0.004, "poisson": 0.25}
-"""Generic foam guesses, never the run's own values (on a sim run those are the truth being tested).
-The modulus is scanned over its range before the search unless an initial value is given."""
+START = {"young_pa": 4e4}
+"""The modulus' first guess when neither `--young` nor `twin identify` gives one (then it is scanned over
+its whole range anyway). Never the run's recorded modulus: on a sim run that is the truth under test."""
 FD_STEP = 0.01
 """Finite-difference step of the final polish, in search coordinates (1 % of a log parameter)."""
 
@@ -81,7 +87,9 @@ def foam_of_run(run: Run) -> FoamParams:
     """The foam described by the run's metadata (or the researcher's shape and size on hardware)."""
     obj = run.metadata.get("object")
     if not obj:
-        raise FitError(f"{run.path}: the run does not describe its object; nothing to put in the twin")
+        raise FitError(
+            f"{run.path}: the run does not describe its object; name it with --object (and --size-mm)"
+        )
     keys = set(FoamParams.__dataclass_fields__)
     given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in obj.items() if k in keys}
     try:
@@ -171,6 +179,10 @@ def _init_worker(base: FoamParams, commands: Commands, names: tuple[str, ...]) -
     _WORKER.update(base=base, commands=commands, names=names)
 
 
+def _key(x: Sequence[float]) -> tuple[float, ...]:
+    return tuple(np.round(np.asarray(x, dtype=float), 12))
+
+
 def _to_params(x: Sequence[float], names: Sequence[str]) -> dict[str, float]:
     return {n: (math.exp(v) if n in LOG_PARAMS else float(v)) for n, v in zip(names, x, strict=True)}
 
@@ -195,6 +207,8 @@ class FitResult:
     identifiable: dict[str, bool]
     start_from: str
     """Where the modulus search started: 'identify' (its estimate), 'scan' (the whole range) or 'given'."""
+    held: list[str]
+    """Parameters left at the run's description: the run could not tell them apart (see identifiable)."""
     rms_initial: dict[str, float]
     rms_fitted: dict[str, float]
     evaluations: int
@@ -215,6 +229,7 @@ class FitResult:
             "identifiable": self.identifiable,
             "initial": self.initial,
             "start_from": self.start_from,
+            "held_at_description": self.held,
             "rms_initial": self.rms_initial,
             "rms_fitted": self.rms_fitted,
             "evaluations": self.evaluations,
@@ -236,8 +251,12 @@ def fit_run(
     workers: int = 2,
     initial: dict[str, float] | None = None,
     progress: Callable[[int, float], None] | None = None,
+    foam: FoamParams | None = None,
 ) -> FitResult:
-    """Fit the named foam parameters of the twin to a recorded run."""
+    """Fit the named foam parameters of the twin to a recorded run.
+
+    `foam` describes the object where the run does not (a hardware run): its geometry, density and
+    friction are kept, the named parameters fitted."""
     started = time.perf_counter()
     run = Run(run_path)
     for stream in ("hand", "command"):
@@ -251,17 +270,23 @@ def fit_run(
             f"unknown fit parameter(s) {', '.join(sorted(unknown))} (choose from {', '.join(PARAMS)})"
         )
     names = tuple(names)
-    base = foam_of_run(run)
+    base = foam if foam is not None else foam_of_run(run)
     window = fit_window_s(run)
     commands = Commands.from_run(run, until_s=window)
     measured = Measured.from_run(run, commands)
-    start = {n: START[n] for n in names} | (initial or {})
-    start_from = "given" if "young_pa" in (initial or {}) else "scan"
-    if "young_pa" in names and start_from == "scan":
-        identified = _identified_young_pa(run.path)  # twin identify's estimate, when the mapping covers it
-        if identified is not None:
-            start["young_pa"], start_from = identified, "identify"
-    truth = {n: getattr(base, n) for n in names} if run.metadata.get("backend") == "sim" else {}
+    described = {n: float(getattr(base, n)) for n in names}
+    start = dict(described)  # the other parameters start (and may stay) where the run's description has them
+    start_from = "described"
+    if "young_pa" in names:
+        start_from = "given" if "young_pa" in (initial or {}) else "scan"
+        start["young_pa"] = (initial or {}).get("young_pa", START["young_pa"])
+        if start_from == "scan":
+            identified = _identified_young_pa(
+                run.path
+            )  # twin identify's estimate, when the mapping covers it
+            if identified is not None:
+                start["young_pa"], start_from = identified, "identify"
+    truth = dict(described) if run.metadata.get("backend") == "sim" else {}
     lo = np.array([math.log(BOUNDS[n][0]) if n in LOG_PARAMS else BOUNDS[n][0] for n in names])
     hi = np.array([math.log(BOUNDS[n][1]) if n in LOG_PARAMS else BOUNDS[n][1] for n in names])
     cache: dict[tuple[float, ...], Replay] = {}
@@ -271,31 +296,24 @@ def fit_run(
 
         def evaluate(xs: list[NDArray]) -> list[Replay]:
             nonlocal evaluations
-            todo = [tuple(np.round(x, 12)) for x in xs if tuple(np.round(x, 12)) not in cache]
+            todo = list(dict.fromkeys(_key(x) for x in xs if _key(x) not in cache))
             for key, result in zip(todo, pool.map(_replay_x, todo), strict=True):
                 cache[key] = result
             evaluations += len(todo)
             if progress is not None:
                 progress(evaluations, time.perf_counter() - started)
-            return [cache[tuple(np.round(x, 12))] for x in xs]
-
-        x0 = np.array([math.log(start[n]) if n in LOG_PARAMS else start[n] for n in names])
-        x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
-        x_initial = x0.copy()
+            return [cache[_key(x)] for x in xs]
 
         def cost(xs: list[NDArray]) -> list[float]:
             return [float(np.sum(residuals(measured, r) ** 2)) for r in evaluate(xs)]
 
-        def zoom(x: NDArray, i: int, stages: int, points: int, full: bool) -> NDArray:
-            """Coarse-to-fine grid search of coordinate i, the grid's points replayed in parallel."""
-            a, b = (
-                (lo[i], hi[i])
-                if full
-                else (max(lo[i], x[i] - ZOOM_SPAN[names[i]]), min(hi[i], x[i] + ZOOM_SPAN[names[i]]))
-            )
+        def zoom(x: NDArray, i: int, stages: int, span: float | None) -> NDArray:
+            """Coarse-to-fine grid search of coordinate i (span None: its whole bound), each stage's
+            candidates replayed in parallel."""
+            a, b = (lo[i], hi[i]) if span is None else (max(lo[i], x[i] - span), min(hi[i], x[i] + span))
             best, best_cost = x, cost([x])[0]
             for _ in range(stages):
-                grid = np.linspace(a, b, points)
+                grid = np.linspace(a, b, ZOOM_POINTS)
                 xs = [np.where(np.arange(len(x)) == i, g, best) for g in grid]
                 costs = cost(xs)
                 k = int(np.argmin(costs))
@@ -305,63 +323,86 @@ def fit_run(
                 a, b = max(lo[i], best[i] - step), min(hi[i], best[i] + step)
             return best
 
-        # The objective has narrow valleys (first contact and breakaway shift with the foam), so a
-        # gradient method alone lands on their walls: grid-zoom each parameter, the modulus first
-        # and again after the others, then polish all together.
-        x = x0
-        order = [n for n in ("young_pa", "poisson", "young_pa", "damping") if n in names]
-        if order.count("young_pa") == 2 and len(set(order)) == 1 + ("damping" in order):
-            order.remove("young_pa")  # the second modulus pass only re-centres after the Poisson ratio
-        for pass_no, n in enumerate(order):
-            i = names.index(n)
-            first_e = n == "young_pa" and pass_no == 0 and start_from == "scan"
-            x = zoom(x, i, stages=4 if first_e else 3, points=ZOOM_POINTS, full=first_e)
+        def moved(x: NDArray, i: int, sign: int) -> NDArray:
+            out = x.copy()
+            n = names[i]
+            out[i] += math.log(1 + sign * PROBE) if n in LOG_PARAMS else sign * PROBE * x[i]
+            out[i] = np.clip(out[i], lo[i], hi[i])
+            return out
 
-        def fun(x: NDArray) -> NDArray:
-            return residuals(measured, evaluate([x])[0])
+        x = np.clip(np.array([math.log(start[n]) if n in LOG_PARAMS else start[n] for n in names]), lo, hi)
+        x_initial = x.copy()
+        # The sum of squares has narrow valleys (first contact and breakaway shift with the foam): a
+        # gradient method alone lands on their walls. Grid-zoom the modulus first.
+        ie = names.index("young_pa") if "young_pa" in names else None
+        if ie is not None:
+            scan = start_from == "scan"
+            x = zoom(x, ie, stages=4 if scan else 3, span=None if scan else ZOOM_SPAN["young_pa"])
+        # Each other parameter: is it identifiable once the modulus may follow it (a profile)? The
+        # Poisson ratio mostly trades off against the modulus along a valley; a parameter that does
+        # not raise the profile by IDENTIFIABLE_RMS_RISE stays at the run's description.
+        free = [] if ie is None else [ie]
+        rise: dict[str, float] = {}
+        for i, n in enumerate(names):
+            if i == ie:
+                continue
+            best = cost([x])[0]
+            profile = []
+            for sign in (1, -1):
+                xp = moved(x, i, sign)
+                if ie is not None:
+                    xp = zoom(xp, ie, stages=2, span=PROFILE_SPAN)
+                profile.append(cost([xp])[0])
+            rise[n] = math.sqrt(min(profile) / max(best, 1e-12)) - 1.0
+            if rise[n] >= IDENTIFIABLE_RMS_RISE:
+                free.append(i)
+                x = zoom(x, i, stages=3, span=ZOOM_SPAN[n])
+                if ie is not None:
+                    x = zoom(x, ie, stages=2, span=PROFILE_SPAN)
 
-        def jac(x: NDArray) -> NDArray:
+        def full(z: NDArray) -> NDArray:
+            out = x.copy()
+            out[free] = z
+            return out
+
+        def fun(z: NDArray) -> NDArray:
+            return residuals(measured, evaluate([full(z)])[0])
+
+        def jac(z: NDArray) -> NDArray:
             steps = [
-                x + FD_STEP * np.eye(len(x))[i] * (1 if x[i] + FD_STEP <= hi[i] else -1)
-                for i in range(len(x))
+                z + FD_STEP * np.eye(len(z))[j] * (1 if z[j] + FD_STEP <= hi[free][j] else -1)
+                for j in range(len(z))
             ]
-            base_r = fun(x)
+            base_r = fun(z)
             cols = [
-                (residuals(measured, r) - base_r) / (s - x).sum()
-                for r, s in zip(evaluate(steps), steps, strict=True)
+                (residuals(measured, r) - base_r) / (s - z).sum()
+                for r, s in zip(evaluate([full(s) for s in steps]), steps, strict=True)
             ]
             return np.column_stack(cols)
 
         sol = least_squares(
             fun,
-            x,
+            x[free],
             jac=jac,
-            bounds=(lo, hi),
+            bounds=(lo[free], hi[free]),
             x_scale=1.0,
-            diff_step=None,
             max_nfev=POLISH_EVALUATIONS,
             xtol=1e-4,
         )
-        probes = []
-        for i, n in enumerate(names):
-            for sign in (1, -1):
-                step = math.log(1 + sign * PROBE) if n in LOG_PARAMS else sign * PROBE * sol.x[i]
-                probes.append(sol.x + step * np.eye(len(names))[i])
-        probe_cost = [float(np.sum(residuals(measured, r) ** 2)) for r in evaluate([x_initial, *probes])[1:]]
+        x = full(sol.x)
+        best = max(float(np.sum(sol.fun**2)), 1e-12)
+        if ie is not None:
+            rise["young_pa"] = math.sqrt(min(cost([moved(x, ie, 1), moved(x, ie, -1)])) / best) - 1.0
         sim_initial = evaluate([x_initial])[0]
-        sim_fitted = evaluate([sol.x])[0]
+        sim_fitted = evaluate([x])[0]
 
-    fitted = _to_params(sol.x, names)
-    dof = max(len(sol.fun) - len(names), 1)
+    fitted = _to_params(x, names)
+    dof = max(len(sol.fun) - len(free), 1)
     cov = np.sum(sol.fun**2) / dof * np.linalg.pinv(sol.jac.T @ sol.jac)
-    sig_x = np.sqrt(np.clip(np.diag(cov), 0, None))
-    sigma = {
-        n: float(fitted[n] * s) if n in LOG_PARAMS else float(s) for n, s in zip(names, sig_x, strict=True)
-    }
-    best = max(float(np.sum(sol.fun**2)), 1e-12)
-    rise = {
-        n: math.sqrt(min(probe_cost[2 * i], probe_cost[2 * i + 1]) / best) - 1.0 for i, n in enumerate(names)
-    }
+    sigma = dict.fromkeys(names, float("nan"))
+    for j, i in enumerate(free):
+        s_i = math.sqrt(max(cov[j, j], 0.0))
+        sigma[names[i]] = fitted[names[i]] * s_i if names[i] in LOG_PARAMS else s_i
     return FitResult(
         run_path=run.path,
         names=names,
@@ -371,6 +412,7 @@ def fit_run(
         sensitivity=rise,
         start_from=start_from,
         identifiable={n: bool(rise[n] >= IDENTIFIABLE_RMS_RISE) for n in names},
+        held=[names[i] for i in range(len(names)) if i not in free],
         rms_initial=rms_by_channel(measured, sim_initial),
         rms_fitted=rms_by_channel(measured, sim_fitted),
         evaluations=evaluations,

@@ -12,6 +12,7 @@ from twin.identify.hand_dynamics import identify_hand
 from twin.identify.identify import identify_run
 from twin.identify.signals import MissingStreamError, load_signals
 from twin.recording.reader import Run
+from twin.viz.rerun_log import read_rrd_scalars
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +86,11 @@ def test_cli_writes_results_figure_and_rerun_file(sphere_run, free_run, tmp_path
     assert printed["material"]["shape"] == "sphere" and len(printed["fingers"]) == 3
     assert printed["hand_terms"]["source"] == str(free_run)
     assert (out / "identify.png").stat().st_size > 10_000
-    assert (out / "identify.rrd").stat().st_size > 1_000
+    # the figure's series in Rerun, on the run's timeline (the viewer merges it with run.rrd)
+    ident = identify_run(sphere_run, free_run)
+    for f in ident.fingers:
+        t, r = read_rrd_scalars(out / "identify.rrd", f"plots/identify/f{f.finger}/tactile_n")
+        assert np.allclose(t, f.t_s) and np.allclose(r, f.reaction_tactile_n)
 
 
 @pytest.mark.parametrize(
@@ -103,3 +108,20 @@ def test_bad_identify_input_is_one_line(argv, message, sphere_run, capsys):
     assert main([a.format(run=sphere_run) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+
+
+def test_a_run_that_does_not_record_its_object_takes_shape_and_size_from_the_researcher(sphere_run, tmp_path):
+    """Hardware runs record no geometry: without it no modulus (a note says why); with it, the same E."""
+    import shutil
+
+    hw_like = tmp_path / "hw-like"
+    shutil.copytree(sphere_run, hw_like)
+    info = json.loads((hw_like / "run.json").read_text())
+    info["metadata"]["object"] = None
+    info["metadata"]["backend"] = "hardware"
+    (hw_like / "run.json").write_text(json.dumps(info))
+    blind = identify_run(hw_like)
+    assert blind.material is None and "does not record the object's shape and size" in blind.notes[-1]
+    told = identify_run(hw_like, shape="sphere", size_m=(0.07, 0.07, 0.07))
+    assert told.material["young_pa"] == pytest.approx(identify_run(sphere_run).material["young_pa"])
+    assert "twin_young_pa" not in told.material  # a hardware run has no truth to compare with

@@ -200,7 +200,7 @@ def to_markdown(results: dict) -> str:
         "",
         f"`twin identify` on a {t['run_s']:g} s run, whole command (process start to exit, including the "
         f"figure and the Rerun file): **{t['wall_s']:.2f} s** (best of 3; limit 2 s). "
-        f"`twin fit` on the same run, all three parameters, 2 processes: **{t['fit_wall_s']:.0f} s** (limit 180 s; it replays the grasp "
-        "and 3 cycles, whatever the run's length).",
+        f"`twin fit` on the same run, all three parameters, 2 processes: **{t['fit_wall_s']:.0f} s** "
+        "(limit 180 s; it replays the grasp and 3 cycles, whatever the run's length).",
     ]
     return "\n".join(lines) + "\n"

@@ -122,6 +122,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/fit)")
     p.add_argument("--no-progress", action="store_true", help="no progress line")
 
+    p = sub.add_parser(
+        "sweep", help="shape-network dataset: many compressions with varied finger trajectories"
+    )
+    p.add_argument("--objects", nargs="+", default=["sphere"], metavar="NAME", help="library objects")
+    p.add_argument("--trajectories", type=int, default=16, metavar="N", help="trajectories per object")
+    p.add_argument("--workers", type=int, default=2, metavar="K", help="trajectories run in parallel")
+    p.add_argument("--executor", choices=("local", "ray"), default="local")
+    p.add_argument("--address", help="ray: the cluster's address (default: a local Ray instance)")
+    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="length of each trajectory (s)")
+    p.add_argument("--points", type=int, default=32, metavar="n", help="contour points")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, required=True, metavar="DATASET", help="dataset directory (resumable)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("train", help="train the shape network (6-30-2n) on a sweep dataset, with baselines")
+    p.add_argument("dataset", type=Path, metavar="DATASET", help="a `twin sweep` directory")
+    p.add_argument("--object", required=True, help="the object whose network to train")
+    p.add_argument(
+        "--out", type=Path, metavar="DIR", help="where the model goes (default DATASET/models/OBJECT)"
+    )
+    p.add_argument("--epochs", type=int, default=3000)
+    p.add_argument(
+        "--validation", type=float, default=0.25, metavar="F", help="fraction of trajectories held out"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
+
     p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
     p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
     p.add_argument("--baud", type=int, default=9600, help="rate the hand powers up at (default 9600)")
@@ -389,6 +416,76 @@ def cmd_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """`twin sweep`: run (or resume) a dataset of trajectories, with a progress bar."""
+    from experiments.sweep import draw_trajectories, sweep
+    from twin.sim.foam import get_object
+
+    for name in args.objects:
+        get_object(name)  # unknown names fail here, in one line
+    if args.trajectories < 1 or args.duration <= 5.0 or args.points < 3:
+        raise ConfigError("--trajectories >= 1, --duration > 5 s (the grasp takes ~4 s) and --points >= 3")
+    trajectories = draw_trajectories(args.objects, args.trajectories, args.seed, args.duration, args.points)
+    kwargs = {"workers": args.workers, "executor": args.executor, "address": args.address}
+    if args.no_progress:
+        entries = sweep(trajectories, args.out, **kwargs)
+    else:
+        from rich.progress import Progress
+
+        with Progress() as bar:
+            task = bar.add_task("trajectories", total=len(trajectories))
+            entries = sweep(
+                trajectories,
+                args.out,
+                progress=lambda done, total: bar.update(task, completed=done),
+                **kwargs,
+            )
+    samples = sum(e["samples"] for e in entries)
+    print(f"dataset {args.out}: {len(entries)} trajectories, {samples} samples")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """`twin train`: the network and its baselines on held-out trajectories."""
+    from twin.shape.dataset import load_dataset
+    from twin.shape.train import train
+
+    if not 0 < args.validation < 1 or args.epochs < 1:
+        raise ConfigError("--validation must be in (0, 1) and --epochs >= 1")
+    data = load_dataset(args.dataset, args.object)
+    result = train(
+        data,
+        validation_fraction=args.validation,
+        seed=args.seed,
+        epochs=args.epochs,
+        metadata={
+            "object": args.object,
+            "dataset": str(args.dataset),
+            "inputs": ["p1", "p2", "p3", "T1", "T2", "T3"],
+        },
+    )
+    out = result.model.save(args.out or args.dataset / "models" / args.object)
+    report = {
+        "model": str(out),
+        "train_samples": result.train_samples,
+        "validation_samples": result.validation_samples,
+        "validation_trajectories": result.validation_trajectories,
+        "wall_s": result.wall_s,
+        "held_out": [
+            {"predictor": e.name, "error_px": e.error_px, "error_mm": e.error_mm} for e in result.evaluations
+        ],
+    }
+    (out / "evaluation.json").write_text(json.dumps(report, indent=1))
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return 0
+    print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
+    for e in result.evaluations:
+        print(f"  {e.name:28s} {e.error_px:6.2f} px  {e.error_mm:6.2f} mm")
+    print(f"wrote {out}")
+    return 0
+
+
 def _surface_summary(truth: dict) -> str:
     """One line: a run's reconstruction accuracy against the twin's truth."""
     return (
@@ -639,6 +736,8 @@ def main(argv: list[str] | None = None) -> int:
         "compare": cmd_compare,
         "identify": cmd_identify,
         "fit": cmd_fit,
+        "sweep": cmd_sweep,
+        "train": cmd_train,
     }
     try:
         if args.command == "run":

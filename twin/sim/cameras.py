@@ -314,6 +314,10 @@ class SimStereo(StereoCamera):
             return image
         return self._add_noise(image, self._noise_draw())
 
+    def read_view(self, camera: str) -> NDArray[np.uint8]:
+        """One noised view now (what a single camera of the pair delivers)."""
+        return self._corrupt(self.render(camera))
+
     def read(self) -> StereoFrame:
         """Both views of the same physics state (a hardware-triggered pair), noised, at sim time."""
         left, right = self.render(LEFT_CAMERA), self.render(RIGHT_CAMERA)

@@ -1,0 +1,244 @@
+"""Dataset sweeps for the shape network (paper §7): many compression runs with varied finger
+trajectories, run in parallel on this machine (processes) or on a Ray cluster, resumable and seeded.
+
+Each job grasps the object like `compress` (close, balance), then drives every finger with its own
+sine: amplitude, frequency and phase drawn per finger from the job's seed, so the network sees the
+fingers move together and apart. At each 30 Hz hand sample it keeps the finger positions (counts),
+the distal torques (eq. 2) and the object's contour in the left camera (twin.vision.contour), the
+inputs and the target of the paper's network.
+
+A dataset directory holds one .npz per trajectory (written to a temporary name, then renamed, so a
+killed sweep never leaves a half file) and index.json listing them; a rerun skips every trajectory
+whose file exists. The same seeds give the same files whichever executor ran them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from experiments.compress import CompressController, CompressProfile
+from twin.interface.errors import ConfigError
+
+INDEX_FILE = "index.json"
+EXECUTORS = ("local", "ray")
+AMPLITUDE_COUNTS = (50.0, 200.0)
+"""Each finger presses from its balanced grasp by 0 to 2 amplitudes: at most 400 counts, the compress
+procedure's own limit (offset + amplitude)."""
+FREQUENCY_HZ = (0.2, 0.8)
+RAMP_S = 1.0
+"""The waves fade in over the first second of the compression, so every finger starts at its grasp."""
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """One job: an object, its per-finger waves, a noise seed and a length."""
+
+    object_name: str
+    index: int
+    seed: int
+    duration_s: float
+    amplitude_counts: tuple[float, float, float]
+    frequency_hz: tuple[float, float, float]
+    phase_rad: tuple[float, float, float]
+    points: int
+
+    @property
+    def name(self) -> str:
+        """File stem: object and index."""
+        return f"{self.object_name}-{self.index:04d}"
+
+
+def draw_trajectories(
+    objects: Iterable[str], count: int, seed: int, duration_s: float, points: int
+) -> list[Trajectory]:
+    """`count` trajectories per object, each drawn from its own stream of `seed` (reproducible, and
+    independent of how many are drawn)."""
+    out = []
+    for obj in objects:
+        for i in range(count):
+            rng = np.random.default_rng([seed, i, sum(map(ord, obj))])
+            out.append(
+                Trajectory(
+                    object_name=obj,
+                    index=i,
+                    seed=int(rng.integers(2**31)),
+                    duration_s=duration_s,
+                    amplitude_counts=tuple(float(a) for a in rng.uniform(*AMPLITUDE_COUNTS, 3)),
+                    frequency_hz=tuple(float(f) for f in rng.uniform(*FREQUENCY_HZ, 3)),
+                    phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)),
+                    points=points,
+                )
+            )
+    return out
+
+
+class TrajectoryController(CompressController):
+    """Close and balance as `compress`; then each finger follows its own wave from the grasp."""
+
+    def __init__(self, trajectory: Trajectory) -> None:
+        super().__init__(CompressProfile())
+        self.trajectory = trajectory
+
+    def _compress(self, t_s: float) -> np.ndarray:
+        tr = self.trajectory
+        t = t_s - self._t_phase
+        a, f, ph = (np.asarray(x) for x in (tr.amplitude_counts, tr.frequency_hz, tr.phase_rad))
+        wave = a * (1 + np.sin(2 * np.pi * f * t + ph)) * min(1.0, t / RAMP_S)
+        return self.grasp_counts + wave
+
+
+def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
+    """One job on the twin: its samples to <out_dir>/<name>.npz; returns its index entry."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from twin.sim.backend import SimBackend
+    from twin.sim.cameras import LEFT_CAMERA
+    from twin.sim.foam import get_object
+    from twin.units import strain_to_torque_nm
+    from twin.vision.contour import ContourError, ContourExtractor
+    from twin.vision.reconstruct import Rectifier
+
+    path = Path(out_dir) / f"{trajectory.name}.npz"
+    foam = get_object(trajectory.object_name)
+    backend = SimBackend(foam, seed=trajectory.seed, stereo=True, tactile=False)
+    backend.connect()
+    try:
+        rectifier = Rectifier(backend.stereo.calibration())
+        box = backend.object_box(rectifier)
+        world, hand, stereo = backend.world, backend.hand, backend.stereo
+        first = rectifier.remap(stereo.read_view(LEFT_CAMERA))
+        plane_z = 0.075 + foam.size_m[2] / 2  # the object's mid-height above the palm plate (z = 75 mm)
+        extract = ContourExtractor(rectifier, first, box, points=trajectory.points, plane_z_m=plane_z)
+        controller = TrajectoryController(trajectory)
+        period = hand.spec.period_s
+        rows: dict[str, list] = {
+            k: [] for k in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm")
+        }
+        lost = 0
+        for k in range(int(trajectory.duration_s / period) + 1):
+            world.advance_to(k * period)
+            reading = hand.read()
+            hand.command(controller(reading))
+            if controller.phase != "compress":
+                continue
+            left = rectifier.remap(stereo.read_view(LEFT_CAMERA))
+            try:
+                contour = extract(left)
+            except ContourError:
+                lost += 1
+                continue
+            rows["t_s"].append(reading.t_s)
+            rows["position_counts"].append(reading.position_counts[:3].astype(float))
+            rows["torque_nm"].append(strain_to_torque_nm(reading.strain_counts))
+            rows["contour_px"].append(contour.pixels)
+            rows["contour_mm"].append(contour.hand_mm)
+    finally:
+        backend.disconnect()
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()}
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **arrays, trajectory=json.dumps(asdict(trajectory)))
+    tmp.replace(path)
+    return _entry(trajectory, path, len(arrays["t_s"]), lost)
+
+
+def _entry(trajectory: Trajectory, path: Path, samples: int, lost: int) -> dict:
+    return {"file": path.name, "samples": samples, "lost_frames": lost, **asdict(trajectory)}
+
+
+def sweep(
+    trajectories: list[Trajectory],
+    out_dir: Path,
+    *,
+    workers: int = 2,
+    executor: str = "local",
+    address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[dict]:
+    """Run every trajectory not already in out_dir; write and return the dataset index."""
+    if executor not in EXECUTORS:
+        raise ConfigError(f"unknown executor '{executor}' (choose from {', '.join(EXECUTORS)})")
+    if workers < 1:
+        raise ConfigError("--workers must be >= 1")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    index = {e["file"]: e for e in read_index(out_dir)}
+    todo = [t for t in trajectories if not (out_dir / f"{t.name}.npz").exists()]
+    done = len(trajectories) - len(todo)
+    if progress is not None:
+        progress(done, len(trajectories))
+    runner = _run_local if executor == "local" else _run_ray
+    for entry in runner(todo, out_dir, workers, address):
+        index[entry["file"]] = entry
+        done += 1
+        _write_index(out_dir, index)
+        if progress is not None:
+            progress(done, len(trajectories))
+    for t in trajectories:  # finished before this call but missing from the index (a killed sweep)
+        if f"{t.name}.npz" not in index:
+            with np.load(out_dir / f"{t.name}.npz") as data:
+                index[f"{t.name}.npz"] = _entry(t, out_dir / f"{t.name}.npz", len(data["t_s"]), 0)
+    _write_index(out_dir, index)
+    return [index[f"{t.name}.npz"] for t in trajectories]
+
+
+def _run_local(todo: list[Trajectory], out_dir: Path, workers: int, address: str | None) -> Iterable[dict]:
+    if address is not None:
+        raise ConfigError("--address is for --executor ray")
+    if workers == 1:
+        for t in todo:
+            yield run_trajectory(t, str(out_dir))
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(workers) as pool:
+        futures = [pool.submit(run_trajectory, t, str(out_dir)) for t in todo]
+        for f in as_completed(futures):
+            yield f.result()
+
+
+def _run_ray(todo: list[Trajectory], out_dir: Path, workers: int, address: str | None) -> Iterable[dict]:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--executor ray needs Ray: pip install 'barrett-twin[cluster]'") from None
+    started = not ray.is_initialized()
+    if started:
+        if address is None:  # a local instance with this many workers
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        remote = ray.remote(num_cpus=1)(run_trajectory)
+        pending = [remote.remote(t, str(out_dir.resolve())) for t in todo]
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def read_index(out_dir: Path) -> list[dict]:
+    """The dataset's index entries (empty for a new directory)."""
+    path = Path(out_dir) / INDEX_FILE
+    if not path.exists():
+        return []
+    try:
+        return json.loads(path.read_text())["trajectories"]
+    except (ValueError, KeyError) as exc:
+        raise ConfigError(f"{path}: not a readable dataset index ({exc})") from None
+
+
+def _write_index(out_dir: Path, index: dict[str, dict]) -> None:
+    path = out_dir / INDEX_FILE
+    tmp = path.with_suffix(".tmp")
+    entries = sorted(index.values(), key=lambda e: (e["object_name"], e["index"]))
+    tmp.write_text(
+        json.dumps({"format": "barrett-twin shape dataset", "version": 1, "trajectories": entries}, indent=1)
+    )
+    tmp.replace(path)

@@ -1,0 +1,148 @@
+"""Train the shape network offline, with two baselines beside it, on whole held-out trajectories.
+
+- network: the paper's 6-30-2n MLP (twin.shape.model), Adam on the mean squared error of the
+  standardized contour, full batch (a sweep holds thousands of samples, not millions), keeping the
+  weights of the best validation epoch;
+- linear regression: contour = A [p, T, 1] by least squares;
+- nearest neighbours: the mean contour of the k closest training samples in standardized input space.
+
+Errors are the mean distance between predicted and measured contour points, in pixels at the
+cameras' 320x240 and in millimetres in the hand frame (through the same per-sample px -> mm map the
+measured contours used, i.e. the measured contour's plane).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from twin.shape.dataset import ShapeData, split_by_trajectory
+from twin.shape.model import ShapeMLP, ShapeModel
+
+EPOCHS = 3000
+LEARNING_RATE = 1e-2
+NEIGHBOURS = 5
+
+
+@dataclass
+class Evaluation:
+    """Mean contour error of one predictor on the held-out trajectories."""
+
+    name: str
+    error_px: float
+    error_mm: float
+
+
+@dataclass
+class TrainResult:
+    """The trained model and how it and the baselines did."""
+
+    model: ShapeModel
+    evaluations: list[Evaluation]
+    train_samples: int
+    validation_samples: int
+    validation_trajectories: list[int]
+    wall_s: float
+
+
+def contour_errors(pred_px: NDArray, data: ShapeData) -> tuple[float, float]:
+    """Mean point distance (px) and the same in mm, through each sample's px -> mm scale."""
+    err_px = np.linalg.norm(pred_px - data.contour_px, axis=2)
+    # local scale of the measured contour: mm per px from its own extent (a plane, ~uniform scale)
+    span_px = np.linalg.norm(data.contour_px - data.contour_px.mean(axis=1, keepdims=True), axis=2).mean(
+        axis=1
+    )
+    span_mm = np.linalg.norm(data.contour_mm - data.contour_mm.mean(axis=1, keepdims=True), axis=2).mean(
+        axis=1
+    )
+    mm_per_px = span_mm / np.maximum(span_px, 1e-9)
+    return float(err_px.mean()), float((err_px * mm_per_px[:, None]).mean())
+
+
+def _standardize(a: NDArray) -> tuple[NDArray, NDArray]:
+    mean, std = a.mean(axis=0), a.std(axis=0)
+    return mean, np.where(std > 1e-9, std, 1.0)
+
+
+def train(
+    data: ShapeData,
+    *,
+    validation_fraction: float = 0.25,
+    seed: int = 0,
+    epochs: int = EPOCHS,
+    progress: Callable[[int, float], None] | None = None,
+    metadata: dict | None = None,
+) -> TrainResult:
+    """Split by trajectory, train the network and the baselines, evaluate all on the held-out set."""
+    started = time.perf_counter()
+    train_set, val_set = split_by_trajectory(data, validation_fraction, seed)
+    points = data.contour_px.shape[1]
+    x_mean, x_std = _standardize(train_set.inputs)
+    y_flat = train_set.contour_px.reshape(len(train_set), -1)
+    y_mean, y_std = _standardize(y_flat)
+    xt = torch.as_tensor((train_set.inputs - x_mean) / x_std, dtype=torch.float32)
+    yt = torch.as_tensor((y_flat - y_mean) / y_std, dtype=torch.float32)
+    xv = torch.as_tensor((val_set.inputs - x_mean) / x_std, dtype=torch.float32)
+    yv = torch.as_tensor((val_set.contour_px.reshape(len(val_set), -1) - y_mean) / y_std, dtype=torch.float32)
+    torch.manual_seed(seed)
+    net = ShapeMLP(points)
+    opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs)
+    best, best_state = np.inf, None
+    for epoch in range(epochs):
+        opt.zero_grad()
+        loss = torch.mean((net(xt) - yt) ** 2)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if epoch % 10 == 0 or epoch == epochs - 1:
+            with torch.no_grad():
+                val = float(torch.mean((net(xv) - yv) ** 2))
+            if val < best:
+                best, best_state = val, {k: v.clone() for k, v in net.state_dict().items()}
+            if progress is not None:
+                progress(epoch + 1, val)
+    net.load_state_dict(best_state)
+    model = ShapeModel(
+        net=net,
+        x_mean=x_mean,
+        x_std=x_std,
+        y_mean=y_mean,
+        y_std=y_std,
+        metadata=(metadata or {}) | {"epochs": epochs, "seed": seed, "validation_mse_std": best},
+    )
+    evaluations = [Evaluation("network (6-30-2n)", *contour_errors(model.predict(val_set.inputs), val_set))]
+    evaluations.append(Evaluation("linear regression", *contour_errors(_linear(train_set, val_set), val_set)))
+    evaluations.append(
+        Evaluation(
+            f"nearest neighbours (k={NEIGHBOURS})",
+            *contour_errors(_knn(train_set, val_set, x_mean, x_std), val_set),
+        )
+    )
+    return TrainResult(
+        model=model,
+        evaluations=evaluations,
+        train_samples=len(train_set),
+        validation_samples=len(val_set),
+        validation_trajectories=sorted(int(t) for t in np.unique(val_set.trajectory)),
+        wall_s=time.perf_counter() - started,
+    )
+
+
+def _linear(train_set: ShapeData, val_set: ShapeData) -> NDArray:
+    a = np.column_stack([train_set.inputs, np.ones(len(train_set))])
+    coef, *_ = np.linalg.lstsq(a, train_set.contour_px.reshape(len(train_set), -1), rcond=None)
+    pred = np.column_stack([val_set.inputs, np.ones(len(val_set))]) @ coef
+    return pred.reshape(val_set.contour_px.shape)
+
+
+def _knn(train_set: ShapeData, val_set: ShapeData, x_mean: NDArray, x_std: NDArray) -> NDArray:
+    tree = cKDTree((train_set.inputs - x_mean) / x_std)
+    _, idx = tree.query((val_set.inputs - x_mean) / x_std, k=NEIGHBOURS)
+    return train_set.contour_px[idx].mean(axis=1)

@@ -25,6 +25,7 @@ SECTIONS = (
     "stereo_pipeline",
     "stereo_run",
     "identification",
+    "shape_network",
 )
 
 

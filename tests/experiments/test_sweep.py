@@ -1,0 +1,88 @@
+"""Sweeps: seeded trajectories, files that appear whole, resumption, and the Ray executor producing
+the local executor's dataset (against a local Ray instance)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from experiments.sweep import TrajectoryController, draw_trajectories, read_index, sweep
+from twin.cli import main
+from twin.interface.errors import ConfigError
+
+pytestmark = pytest.mark.xdist_group("realtime")  # renders and two worker processes
+
+DURATION_S = 6.5  # the grasp settles at ~3.5 s; then 3 s of varied compression
+
+
+def test_trajectories_are_seeded_per_index_and_vary_per_finger():
+    a = draw_trajectories(["sphere"], 4, seed=7, duration_s=10, points=16)
+    b = draw_trajectories(["sphere"], 6, seed=7, duration_s=10, points=16)
+    assert a == b[:4]  # drawing more does not change the first ones
+    assert a != draw_trajectories(["sphere"], 4, seed=8, duration_s=10, points=16)
+    assert all(len(set(t.frequency_hz)) == 3 and len(set(t.phase_rad)) == 3 for t in a)
+
+
+def test_every_finger_starts_its_wave_at_the_grasp_and_presses_at_most_400_counts():
+    (t,) = draw_trajectories(["sphere"], 1, seed=0, duration_s=10, points=16)
+    c = TrajectoryController(t)
+    c.grasp_counts, c._t_phase, c.phase = np.array([12000.0, 12000.0, 11800.0]), 5.0, "compress"
+    assert np.allclose(c._compress(5.0), c.grasp_counts)
+    waves = np.array([c._compress(5.0 + s) - c.grasp_counts for s in np.linspace(0, 20, 400)])
+    assert waves.min() >= 0 and waves.max() <= 400 + 1e-9
+
+
+@pytest.fixture(scope="module")
+def local_dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep") / "local"
+    trajectories = draw_trajectories(["sphere"], 2, seed=3, duration_s=DURATION_S, points=16)
+    return out, trajectories, sweep(trajectories, out, workers=2)
+
+
+def test_a_local_sweep_writes_whole_files_and_an_index(local_dataset):
+    out, trajectories, entries = local_dataset
+    assert [e["file"] for e in entries] == [f"{t.name}.npz" for t in trajectories]
+    assert read_index(out) == entries
+    for e in entries:
+        with np.load(out / e["file"]) as d:
+            n = len(d["t_s"])
+            assert n == e["samples"] > 60 and d["contour_px"].shape == (n, 16, 2)
+            assert d["position_counts"].shape == d["torque_nm"].shape == (n, 3)
+            assert np.isfinite(d["contour_mm"]).all()
+            assert json.loads(str(d["trajectory"]))["index"] == e["index"]
+    assert not list(out.glob("*.tmp*"))
+
+
+def test_a_rerun_skips_finished_trajectories(local_dataset):
+    out, trajectories, entries = local_dataset
+    stamps = {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")}
+    progress = []
+    again = sweep(trajectories, out, workers=2, progress=lambda done, total: progress.append((done, total)))
+    assert again == entries and progress == [(2, 2)]
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")} == stamps
+
+
+def test_ray_produces_the_local_dataset(local_dataset, tmp_path):
+    out, trajectories, _ = local_dataset
+    entries = sweep(trajectories, tmp_path / "ray", workers=2, executor="ray")
+    for e in entries:
+        with np.load(out / e["file"]) as a, np.load(tmp_path / "ray" / e["file"]) as b:
+            for key in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm"):
+                assert np.array_equal(a[key], b[key]), key
+
+
+def test_bad_sweep_input_is_one_line(tmp_path, capsys):
+    for argv, message in (
+        (["sweep", "--objects", "teapot", "--out", str(tmp_path / "x")], "unknown object 'teapot'"),
+        (["sweep", "--duration", "3", "--out", str(tmp_path / "x")], "--duration > 5 s"),
+        (
+            ["sweep", "--executor", "local", "--address", "ray://h:1", "--out", str(tmp_path / "x")],
+            "--address",
+        ),
+        (["train", str(tmp_path / "none"), "--object", "sphere"], "not a sweep dataset"),
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+    with pytest.raises(ConfigError, match="unknown executor"):
+        sweep([], tmp_path / "y", executor="dask")

@@ -11,7 +11,8 @@ from pathlib import Path
 
 from experiments.sweep import draw_trajectories, sweep
 
-OBJECT = "sphere"
+OBJECT = "cylinder"
+"""The library foam whose contour moves most under the fingers (the sphere's barely does: 0.1 px)."""
 TRAJECTORIES = 24
 DURATION_S = 20.0
 POINTS = 32

@@ -153,11 +153,13 @@ def run_compress(
     progress: Callable[[float], None] | None = None,
     argv: list[str] | None = None,
     stereo_box: tuple[int, int, int, int] | None = None,
+    shape_model: object = None,
 ) -> RunOutcome:
     """The compress procedure on any backend, recorded to run_dir (what `twin run compress` does).
 
     `object_name` is what is in the hand: the sim knows it, on hardware it is the researcher's word.
     `stereo_box`: where the backend has cameras, the object's box on the first frame (see run_experiment).
+    `shape_model`: a trained twin.shape.model.ShapeModel predicting the contour live (`--predict`).
     """
     from twin.session import run_experiment
 
@@ -172,4 +174,5 @@ def run_compress(
         progress=progress,
         argv=argv,
         stereo_box=stereo_box,
+        shape_model=shape_model,
     )

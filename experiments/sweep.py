@@ -148,7 +148,8 @@ def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
 
 
 def _entry(trajectory: Trajectory, path: Path, samples: int, lost: int) -> dict:
-    return {"file": path.name, "samples": samples, "lost_frames": lost, **asdict(trajectory)}
+    entry = {"file": path.name, "samples": samples, "lost_frames": lost, **asdict(trajectory)}
+    return json.loads(json.dumps(entry))  # as the index stores it (tuples become lists)
 
 
 def sweep(
@@ -193,9 +194,11 @@ def _run_local(todo: list[Trajectory], out_dir: Path, workers: int, address: str
         for t in todo:
             yield run_trajectory(t, str(out_dir))
         return
+    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(workers) as pool:
+    # spawn, not fork: a parent that has rendered holds an EGL context a forked child would deadlock on
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(run_trajectory, t, str(out_dir)) for t in todo]
         for f in as_completed(futures):
             yield f.result()

@@ -75,6 +75,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="X,Y,W,H",
         help="cameras: the object's box on the first frame, rectified left pixels (sim default: the foam's)",
     )
+    c.add_argument(
+        "--predict",
+        type=Path,
+        metavar="MODEL",
+        help="a `twin train` model: predict the object's contour from every hand reading (with --cameras, "
+        "beside the measured one)",
+    )
     _add_foam_overrides(c)
 
     f = run_sub.add_parser("free", help="swing the empty hand's fingers (identifies eq. 4's hand terms)")
@@ -245,6 +252,19 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
 
     foam = _foam_from_args(args)
     run_dir = args.out or default_run_dir("compress", foam.name)
+    shape_model = None
+    if args.predict is not None:
+        from twin.shape.model import ShapeModel
+
+        try:
+            shape_model = ShapeModel.load(args.predict)
+        except ValueError as exc:
+            raise ConfigError(f"--predict {exc}") from None
+        trained_on = shape_model.metadata.get("object")
+        if trained_on and trained_on != foam.name:
+            raise ConfigError(
+                f"--predict: the model was trained on '{trained_on}', the hand holds '{foam.name}'"
+            )
     box = None
     if (args.bbox is not None or args.stereo_calibration is not None) and not args.cameras:
         raise ConfigError("--bbox and --stereo-calibration need --cameras")
@@ -288,6 +308,7 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             object_name=foam.name,
             progress=progress,
             stereo_box=box,
+            shape_model=shape_model,
         ),
     )
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")

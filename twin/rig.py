@@ -16,7 +16,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -35,7 +35,11 @@ from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
+from twin.vision.contour import ContourError, outer_contour, resample
 from twin.vision.pipeline import StereoPipeline, SurfaceFrame, stereo_stream_spec
+
+if TYPE_CHECKING:
+    from twin.shape.model import ShapeModel  # torch: imported only by runs that predict
 
 
 class Controller(Protocol):
@@ -148,6 +152,20 @@ def stereo_truth_stream_spec(rate_hz: float) -> StreamSpec:
     )
 
 
+def contour_stream_spec(name: str, rate_hz: float, points: int, what: str) -> StreamSpec:
+    """A contour per sample: the shape network's prediction or the camera's measurement (rectified px)."""
+    return StreamSpec(
+        name=name,
+        rate_hz=rate_hz,
+        description=f"the object's contour, {what} (rectified left camera, {points} points from the top)",
+        fields={
+            "contour_px": FieldSpec(
+                unit="px", dtype="float32", kind="physical", shape=(points, 2), description=f"{what} contour"
+            )
+        },
+    )
+
+
 def summarize_surface_scores(scores: list[dict], median_mm: float = 1.5, coverage: float = 0.6) -> dict:
     """A run's reconstruction accuracy over its stereo frames (what run.json and `twin info` report)."""
     med = np.array([s["median_mm"] for s in scores], dtype=float)
@@ -196,8 +214,11 @@ class Rig:
         safety: SafetyLayer | None = None,
         tactile_calibration: TaxelCalibration | None = None,
         stereo_pipeline: StereoPipeline | None = None,
+        shape_model: ShapeModel | None = None,
     ) -> None:
         self.backend = backend
+        self.shape_model = shape_model
+        """Predicts the object's contour from every hand reading (paper §7); None: no prediction."""
         if stereo_pipeline is not None and backend.stereo is None:
             raise ValueError("a stereo pipeline needs a backend with a stereo camera")
         self.stereo_pipeline = stereo_pipeline
@@ -230,6 +251,13 @@ class Rig:
                 writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
             if backend.tactile is not None:
                 writer.add_stream(tactile_stream_spec(backend.tactile.spec.rate_hz))
+            if shape_model is not None:
+                writer.add_stream(
+                    contour_stream_spec("shape", hand_spec.rate_hz, shape_model.points, "predicted")
+                )
+                if stereo_pipeline is not None:
+                    rate = backend.stereo.spec.rate_hz
+                    writer.add_stream(contour_stream_spec("contour", rate, shape_model.points, "measured"))
             if stereo_pipeline is not None:
                 writer.add_stream(stereo_stream_spec(backend.stereo.spec.rate_hz))
                 if backend.ground_truth() is not None:
@@ -345,6 +373,13 @@ class Rig:
         if truth is not None:
             self._record("truth", reading.t_s, truth)
         self.safety.observe(reading)
+        if self.shape_model is not None:
+            inputs = np.concatenate([reading.position_counts[:3], physical["torque_nm"]])
+            predicted = self.shape_model.predict(inputs)
+            self._record("shape", reading.t_s, {"contour_px": predicted})
+            log_contour = getattr(self.viewer, "log_contour", None)
+            if log_contour is not None:
+                log_contour(reading.t_s, "predicted", predicted)
         command = controller(reading)
         if command is not None:
             applied = self.backend.hand.command(self.safety.check(command))
@@ -432,6 +467,16 @@ class Rig:
 
     def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
         self._record("stereo", frame.t_s, surface.record())
+        if self.shape_model is not None and surface.reconstruction.mask.any():
+            try:
+                measured = resample(outer_contour(surface.reconstruction.mask), self.shape_model.points)
+            except ContourError:
+                measured = None
+            if measured is not None:
+                self._record("contour", frame.t_s, {"contour_px": measured})
+                log_contour = getattr(self.viewer, "log_contour", None)
+                if log_contour is not None:
+                    log_contour(frame.t_s, "measured", measured)
         log_stereo = getattr(self.viewer, "log_stereo", None)
         if log_stereo is not None:
             log_stereo(

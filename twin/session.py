@@ -89,12 +89,15 @@ def run_experiment(
     argv: list[str] | None = None,
     safety: SafetyLayer | None = None,
     stereo_box: tuple[int, int, int, int] | None = None,
+    shape_model: Any = None,
 ) -> RunOutcome:
     """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd.
 
     With a stereo camera on the backend every pair is reconstructed and fused with the pads
     (twin.vision.pipeline); `stereo_box` is the object's bounding box on the first frame (x, y, w, h
     in the rectified left view), by default the one the backend suggests (the sim knows its foam).
+    `shape_model` (twin.shape.model.ShapeModel) predicts the object's contour from every hand reading;
+    with cameras the measured contour is recorded beside it.
     """
     from twin.viz.rerun_log import RunRecording
 
@@ -149,6 +152,7 @@ def run_experiment(
                     safety=safety,
                     tactile_calibration=tactile_calibration,
                     stereo_pipeline=stereo_pipeline,
+                    shape_model=shape_model,
                 )
                 result = rig.run(controller, duration_s, progress)
                 writer.update_metadata(final_phase=result.final_phase)

@@ -52,6 +52,8 @@ HAND_ENTITY = "world/hand"
 STEREO_ENTITY = f"{HAND_ENTITY}/stereo"
 CAMERA_SIDES = ("left", "right")
 RECTIFIED_ENTITY = f"{STEREO_ENTITY}/rectified_left"
+CONTOUR_RGB = {"predicted": (230, 60, 200), "measured": (40, 220, 90)}
+"""The shape network's contour in magenta, the camera's in green."""
 """The rectified left camera: the disparity's view, logged as a depth image under its pinhole."""
 CLOUD_ENTITY = f"{STEREO_ENTITY}/cloud"
 MESH_ENTITY = f"{STEREO_ENTITY}/mesh"
@@ -400,6 +402,16 @@ class RunRecording:
             self.rec.log(
                 TACTILE_POINTS_ENTITY, rr.Points3D(tactile, colors=[TACTILE_POINTS_RGB], radii=0.0015)
             )
+
+    def log_contour(self, t_s: float, kind: str, contour_px: ArrayLike) -> None:
+        """A contour ("predicted" or "measured") as a closed line over the rectified left camera's image
+        space (where the depth image lives), so both show together on the camera's 2-D view."""
+        self._open(t_s)
+        pts = np.asarray(contour_px, dtype=np.float32).reshape(-1, 2)
+        strip = np.vstack([pts, pts[:1]])
+        self.rec.log(
+            f"{RECTIFIED_ENTITY}/contour/{kind}", rr.LineStrips2D([strip], colors=[CONTOUR_RGB[kind]])
+        )
 
     def close(self) -> None:
         """Flush and finish the .rrd; safe to call twice."""

@@ -1,0 +1,63 @@
+"""`twin run compress --predict MODEL`: the contour predicted from every hand reading is recorded and
+drawn beside the camera's, and a model is checked before any run starts."""
+
+import numpy as np
+import pytest
+
+from twin.cli import main
+from twin.recording.reader import Run
+from twin.session import RRD_NAME
+from twin.shape.model import ShapeMLP, ShapeModel
+from twin.viz.rerun_log import RECTIFIED_ENTITY, read_rrd_entities
+
+pytestmark = pytest.mark.xdist_group("realtime")  # a camera run
+
+
+@pytest.fixture
+def model_dir(tmp_path):
+    rng = np.random.default_rng(0)
+    model = ShapeModel(
+        net=ShapeMLP(16),
+        x_mean=np.array([12000, 12000, 12000, 0.2, 0.2, 0.2]),
+        x_std=np.array([500, 500, 500, 0.1, 0.1, 0.1]),
+        y_mean=rng.uniform(100, 200, 32),
+        y_std=np.full(32, 5.0),
+        metadata={"object": "sphere"},
+    )
+    return model.save(tmp_path / "model")
+
+
+def test_a_run_predicts_every_hand_sample_and_records_the_measured_contour(model_dir, tmp_path):
+    out = tmp_path / "run"
+    argv = [
+        "run",
+        "compress",
+        "--object",
+        "sphere",
+        "--duration",
+        "3",
+        "--cameras",
+        "--predict",
+        str(model_dir),
+    ]
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 0
+    run = Run(out)
+    hand, shape, contour = run.stream("hand"), run.stream("shape"), run.stream("contour")
+    assert len(shape) == len(hand) and np.array_equal(shape.t_s, hand.t_s)
+    model = ShapeModel.load(model_dir)
+    inputs = np.column_stack([hand["position_counts"][:, :3], hand["torque_nm"]])
+    assert np.allclose(shape["contour_px"], model.predict(inputs), atol=1e-3)
+    assert len(contour) > 60 and contour["contour_px"].shape[1:] == (16, 2)
+    assert ((contour["contour_px"] >= 0) & (contour["contour_px"] <= 320)).all()
+    entities = read_rrd_entities(out / RRD_NAME)
+    assert f"/{RECTIFIED_ENTITY}/contour/predicted".replace("//", "/") in entities
+    assert f"/{RECTIFIED_ENTITY}/contour/measured".replace("//", "/") in entities
+
+
+def test_a_model_that_is_not_one_or_for_another_object_is_refused_before_the_run(model_dir, tmp_path, capsys):
+    for model, message in ((tmp_path, "not a trained shape model"), (model_dir, "trained on 'sphere'")):
+        out = tmp_path / "never"
+        argv = ["run", "compress", "--object", "block", "--predict", str(model), "--out", str(out)]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and not out.exists()

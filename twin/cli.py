@@ -35,6 +35,17 @@ def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
     g.add_argument("--friction", type=float, help="sliding friction coefficient")
 
 
+def _add_run_options(p: argparse.ArgumentParser, duration_s: float) -> None:
+    """What every `twin run` experiment takes: backend, hand, rig, duration, seed, output, progress."""
+    p.add_argument("--backend", choices=("sim", "hardware"), default="sim")
+    p.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
+    p.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
+    p.add_argument("--duration", type=float, default=duration_s, metavar="S", help="run length (s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
+    p.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `twin`."""
     parser = argparse.ArgumentParser(
@@ -49,13 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     run_sub = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
     c.add_argument("--object", default="block", help="library object (see `twin objects`)")
-    c.add_argument("--backend", choices=("sim", "hardware"), default="sim")
-    c.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
-    c.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
-    c.add_argument("--duration", type=float, default=10.0, metavar="S", help="run length (s)")
-    c.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
-    c.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
-    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_run_options(c, duration_s=10.0)
     c.add_argument(
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
     )
@@ -85,13 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_foam_overrides(c)
 
     f = run_sub.add_parser("free", help="swing the empty hand's fingers (identifies eq. 4's hand terms)")
-    f.add_argument("--backend", choices=("sim", "hardware"), default="sim")
-    f.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
-    f.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
-    f.add_argument("--duration", type=float, default=20.0, metavar="S", help="run length (s)")
-    f.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
-    f.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
-    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_run_options(f, duration_s=20.0)
 
     p = sub.add_parser(
         "identify", help="eq. 4 per finger and the foam's Young's modulus, from a compress run"

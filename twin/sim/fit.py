@@ -22,6 +22,7 @@ modulus along a valley (a 25 % change moves E ~8 %) and the elasticity damping b
 from __future__ import annotations
 
 import math
+import multiprocessing
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -275,15 +276,13 @@ def fit_run(
     commands = Commands.from_run(run, until_s=window)
     measured = Measured.from_run(run, commands)
     described = {n: float(getattr(base, n)) for n in names}
-    start = dict(described)  # the other parameters start (and may stay) where the run's description has them
+    start = dict(described)  # the others start (and may stay) where the run's description has them
     start_from = "described"
     if "young_pa" in names:
         start_from = "given" if "young_pa" in (initial or {}) else "scan"
         start["young_pa"] = (initial or {}).get("young_pa", START["young_pa"])
-        if start_from == "scan":
-            identified = _identified_young_pa(
-                run.path
-            )  # twin identify's estimate, when the mapping covers it
+        if start_from == "scan":  # twin identify's estimate, when the mapping covers the object
+            identified = _identified_young_pa(run.path)
             if identified is not None:
                 start["young_pa"], start_from = identified, "identify"
     truth = dict(described) if run.metadata.get("backend") == "sim" else {}
@@ -292,7 +291,11 @@ def fit_run(
     cache: dict[tuple[float, ...], Replay] = {}
     evaluations = 0
 
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(base, commands, names)) as pool:
+    # spawned, not forked: a caller that has rendered (a notebook) holds an EGL context a fork inherits
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(
+        workers, mp_context=context, initializer=_init_worker, initargs=(base, commands, names)
+    ) as pool:
 
         def evaluate(xs: list[NDArray]) -> list[Replay]:
             nonlocal evaluations

@@ -7,6 +7,10 @@ fingers move together and apart. At each 30 Hz hand sample it keeps the finger p
 the distal torques (eq. 2) and the object's contour in the left camera (twin.vision.contour), the
 inputs and the target of the paper's network.
 
+A job drives the twin directly rather than through the rig: it records only the dataset's arrays, and
+no safety layer stands between it and the simulated hand (its set points stay within the compress
+procedure's 400-count limit by construction). Hardware data comes from recorded runs instead.
+
 A dataset directory holds one .npz per trajectory (written to a temporary name, then renamed, so a
 killed sweep never leaves a half file) and index.json listing them; a rerun skips every trajectory
 whose file exists. The same seeds give the same files whichever executor ran them.

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.interface.errors import TwinError
+
 MAP_FILE = Path(__file__).with_name("material_map.json")
 FEATURES = {
     "thumb_secant_n_m": "F3 secant contact stiffness: mean R / mean delta over whole cycles (N/m)",
@@ -42,7 +44,7 @@ NOISE_SMOOTHING_KNOTS = 5
 so one knot where the runs split (a clutch that breaks away in one seed only) widens its neighbourhood."""
 
 
-class MappingError(ValueError):
+class MappingError(TwinError, ValueError):
     """No mapping covers the object (shape unknown, size or stiffness outside the built range)."""
 
 

@@ -19,11 +19,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from twin.interface.errors import TwinError
+
 MODELS = ("kelvin-voigt", "hunt-crossley")
 
 
-class IdentificationError(ValueError):
-    """The data cannot support the fit (too few samples in contact, no excitation)."""
+class IdentificationError(TwinError, ValueError):
+    """The data cannot support the fit (too few samples in contact, no excitation); one line."""
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from twin.interface.errors import TwinError
 from twin.vision.reconstruct import ObjectTracker, Rectifier
 
 DEFAULT_POINTS = 32
@@ -27,7 +28,7 @@ SMOOTHING_PX = 2.0
 staircase is ~5 % longer than the curve it samples, and that slack would shift points along it."""
 
 
-class ContourError(ValueError):
+class ContourError(TwinError, ValueError):
     """No usable contour (empty mask, or a blob too small to resample)."""
 
 

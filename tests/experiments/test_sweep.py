@@ -71,6 +71,18 @@ def test_ray_produces_the_local_dataset(local_dataset, tmp_path):
                 assert np.array_equal(a[key], b[key]), key
 
 
+def test_a_damaged_trajectory_file_is_named_in_one_line(local_dataset, tmp_path, capsys):
+    import shutil
+
+    out, _, entries = local_dataset
+    damaged = tmp_path / "damaged"
+    shutil.copytree(out, damaged)
+    (damaged / entries[0]["file"]).write_bytes(b"PK\x03\x04 not a zip")
+    assert main(["train", str(damaged), "--object", "sphere"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{entries[0]['file']}: not a readable trajectory" in err
+
+
 def test_bad_sweep_input_is_one_line(tmp_path, capsys):
     for argv, message in (
         (["sweep", "--objects", "teapot", "--out", str(tmp_path / "x")], "unknown object 'teapot'"),

@@ -4,6 +4,7 @@ contour targets, grouped by trajectory so that validation holds out whole trajec
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,11 +48,16 @@ def load_dataset(directory: Path | str, object_name: str) -> ShapeData:
         raise ConfigError(f"{directory}: no trajectories of '{object_name}'")
     parts = []
     for e in entries:
-        with np.load(directory / e["file"]) as d:
-            if len(d["t_s"]) == 0:
-                continue
-            x = np.column_stack([d["position_counts"], d["torque_nm"]])
-            parts.append((x, d["contour_px"], d["contour_mm"], np.full(len(x), e["index"])))
+        try:
+            with np.load(directory / e["file"]) as d:
+                if len(d["t_s"]) == 0:
+                    continue
+                x = np.column_stack([d["position_counts"], d["torque_nm"]])
+                parts.append((x, d["contour_px"], d["contour_mm"], np.full(len(x), e["index"])))
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+            raise ConfigError(
+                f"{directory / e['file']}: not a readable trajectory ({exc}); rerun the sweep"
+            ) from None
     if not parts:
         raise ConfigError(f"{directory}: the trajectories of '{object_name}' hold no samples")
     x, px, mm, traj = (np.concatenate(p) for p in zip(*parts, strict=True))

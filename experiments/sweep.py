@@ -151,6 +151,87 @@ def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
     return _entry(trajectory, path, len(arrays["t_s"]), lost)
 
 
+def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) -> dict:
+    """A recorded run with cameras (sim or hardware) as one dataset trajectory: its recorded left frames
+    through the same contour code, each paired with the hand reading delivered at or before it.
+
+    The run gets the next free index of its object (the same one again when it is added twice).
+    The frames are rectified with the run's own stereo calibration; the tracker starts from the box
+    the run recorded on its first frame. Contours in mm need the object's height (the run's object
+    description); without it they are NaN and only pixel errors can be scored."""
+    from twin.recording.reader import Run
+    from twin.vision.calibration import StereoCalibration
+    from twin.vision.contour import ContourError, ContourExtractor
+    from twin.vision.pipeline import decode_jpeg
+    from twin.vision.reconstruct import Rectifier
+
+    run = Run(run_dir)
+    for stream in ("hand", "stereo"):
+        if stream not in run.streams or not len(run.stream(stream)):
+            raise ConfigError(f"{run.path}: no '{stream}' stream; record the run with --cameras")
+    calibration_file = (run.metadata.get("calibration_files") or {}).get("stereo_calibration")
+    if calibration_file is None:
+        raise ConfigError(f"{run.path}: the run kept no stereo calibration")
+    rectifier = Rectifier(StereoCalibration.load(run.path / calibration_file))
+    stereo, hand = run.stream("stereo"), run.stream("hand")
+    obj = run.metadata.get("object") or {}
+    plane_z = 0.075 + obj["size_m"][2] / 2 if obj.get("size_m") else None
+    phases = tuple(run.metadata.get("phases", ()))
+    in_compress = np.ones(len(hand), dtype=bool)
+    if "compress" in phases and "command" in run.streams:
+        cmd = run.stream("command")
+        at = np.clip(np.searchsorted(cmd.t_s, hand.t_s, side="right") - 1, 0, len(cmd) - 1)
+        in_compress = cmd["phase"][at] == phases.index("compress")
+    first = rectifier.remap(decode_jpeg(stereo["left_jpeg"][0]))
+    box = tuple(int(v) for v in stereo["box"][0])
+    extract = ContourExtractor(rectifier, first, box, points=points, plane_z_m=plane_z)
+    rows: dict[str, list] = {
+        k: [] for k in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm")
+    }
+    lost = 0
+    for t, jpeg in zip(stereo.t_s, stereo["left_jpeg"], strict=True):
+        left = rectifier.remap(decode_jpeg(jpeg))
+        try:
+            contour = extract(left)  # every frame, so the tracker follows the object
+        except ContourError:
+            lost += 1
+            continue
+        i = int(np.searchsorted(hand.t_s, t, side="right")) - 1
+        if i < 0 or not in_compress[i]:
+            continue
+        rows["t_s"].append(float(t))
+        rows["position_counts"].append(hand["position_counts"][i, :3].astype(float))
+        rows["torque_nm"].append(hand["torque_nm"][i].astype(float))
+        rows["contour_px"].append(contour.pixels)
+        rows["contour_mm"].append(
+            contour.hand_mm if contour.hand_mm is not None else np.full((points, 2), np.nan)
+        )
+    object_name = run.metadata.get("experiment", {}).get("object") or obj.get("name") or "object"
+    existing = [e for e in read_index(out_dir) if e["object_name"] == object_name]
+    same_run = [e["index"] for e in existing if e.get("run") == str(run.path)]
+    index = same_run[0] if same_run else 1 + max((e["index"] for e in existing), default=-1)
+    trajectory = Trajectory(
+        object_name=object_name,
+        index=index,
+        seed=int(run.metadata.get("seed") or 0),
+        duration_s=float(run.metadata.get("duration_s") or 0.0),
+        amplitude_counts=(0.0, 0.0, 0.0),
+        frequency_hz=(0.0, 0.0, 0.0),
+        phase_rad=(0.0, 0.0, 0.0),
+        points=points,
+    )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{trajectory.name}.npz"
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()}
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **arrays, trajectory=json.dumps(asdict(trajectory)), run=str(run.path))
+    tmp.replace(path)
+    entry = _entry(trajectory, path, len(arrays["t_s"]), lost) | {"run": str(run.path)}
+    index_entries = {e["file"]: e for e in read_index(out_dir)} | {entry["file"]: entry}
+    _write_index(out_dir, index_entries)
+    return entry
+
+
 def _entry(trajectory: Trajectory, path: Path, samples: int, lost: int) -> dict:
     entry = {"file": path.name, "samples": samples, "lost_frames": lost, **asdict(trajectory)}
     return json.loads(json.dumps(entry))  # as the index stores it (tuples become lists)

@@ -140,6 +140,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--points", type=int, default=32, metavar="n", help="contour points")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True, metavar="DATASET", help="dataset directory (resumable)")
+    p.add_argument(
+        "--from-runs",
+        nargs="+",
+        type=Path,
+        metavar="RUN",
+        help="instead of simulating: add recorded runs with --cameras (sim or hardware) to the dataset",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p = sub.add_parser("train", help="train the shape network (6-30-2n) on a sweep dataset, with baselines")
@@ -438,8 +445,17 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """`twin sweep`: run (or resume) a dataset of trajectories, with a progress bar."""
-    from experiments.sweep import draw_trajectories, sweep
+    from experiments.sweep import draw_trajectories, sweep, trajectory_from_run
     from twin.sim.foam import get_object
+
+    if args.from_runs:
+        for run_dir in args.from_runs:
+            if not (run_dir / "run.json").is_file():
+                raise ConfigError(f"--from-runs {run_dir}: not a run directory (no run.json)")
+        for run_dir in args.from_runs:
+            entry = trajectory_from_run(run_dir, args.out, points=args.points)
+            print(f"{run_dir}: {entry['samples']} samples -> {args.out / entry['file']}")
+        return 0
 
     for name in args.objects:
         get_object(name)  # unknown names fail here, in one line

@@ -9,6 +9,7 @@ import pytest
 from experiments.sweep import TrajectoryController, draw_trajectories, read_index, sweep
 from twin.cli import main
 from twin.interface.errors import ConfigError
+from twin.recording.reader import Run
 
 pytestmark = pytest.mark.xdist_group("realtime")  # renders and two worker processes
 
@@ -98,3 +99,28 @@ def test_bad_sweep_input_is_one_line(tmp_path, capsys):
         assert err.count("\n") == 1 and message in err, err
     with pytest.raises(ConfigError, match="unknown executor"):
         sweep([], tmp_path / "y", executor="dask")
+
+
+def test_a_recorded_camera_run_becomes_a_dataset_trajectory(tmp_path, capsys):
+    """The hardware path: recorded frames (as JPEG) through the same contour code, paired with the
+    hand readings; shown on a sim run recorded with --cameras."""
+    run = tmp_path / "run"
+    argv = ["run", "compress", "--object", "sphere", "--duration", "6", "--cameras", "--no-progress"]
+    assert main([*argv, "--out", str(run)]) == 0
+    assert main(["sweep", "--from-runs", str(run), "--out", str(tmp_path / "ds"), "--points", "16"]) == 0
+    (entry,) = read_index(tmp_path / "ds")
+    with np.load(tmp_path / "ds" / entry["file"]) as d:
+        n = len(d["t_s"])
+        assert n == entry["samples"] > 40 and d["contour_px"].shape == (n, 16, 2)
+        hand = Run(run).stream("hand")
+        i = np.searchsorted(hand.t_s, d["t_s"], side="right") - 1
+        assert np.array_equal(d["position_counts"], hand["position_counts"][i, :3])
+        # contours of the grasped sphere: in the image, and over the palm in the hand frame
+        assert ((d["contour_px"] > 0) & (d["contour_px"] < 320)).all()
+        assert np.isfinite(d["contour_mm"]).all() and (np.abs(d["contour_mm"]) < 60).all()
+        # one sample per recorded frame of the compression (the sphere is never lost)
+        stereo = Run(run).stream("stereo")
+        assert entry["lost_frames"] == 0 and n <= len(stereo) and np.isin(d["t_s"], stereo.t_s).all()
+    capsys.readouterr()
+    assert main(["sweep", "--from-runs", str(tmp_path / "nothing"), "--out", str(tmp_path / "ds")]) == 2
+    assert "not a run directory" in capsys.readouterr().err

@@ -1,4 +1,5 @@
-"""The `twin` command line: objects, run, calibrate, emulate, info, compare, view.
+"""The `twin` command line: objects, run, identify, fit, sweep, train, calibrate, emulate, info, compare,
+view.
 
 Bad input ends with one line on stderr and exit status 2; nothing is simulated or written first.
 """
@@ -49,7 +50,9 @@ def _add_run_options(p: argparse.ArgumentParser, duration_s: float) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `twin`."""
     parser = argparse.ArgumentParser(
-        prog="twin", description="Barrett BH8 digital twin: simulate, record and view foam compression runs."
+        prog="twin",
+        description="Barrett BH8 digital twin: simulate, record and view foam compression runs; identify the "
+        "foam (eq. 4), fit the twin to a run, and train the shape network.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

@@ -96,11 +96,12 @@ def to_markdown(results: dict) -> str:
         "'Motion' is how much the measured contour moves: the per-point standard deviation over the dataset.",
         "",
         "| object | trajectories (samples) | motion (px) | held out | network (px / mm) | linear (px / mm) "
-        "| nearest neighbours (px / mm) |",
-        "|---|---|---|---|---|---|---|",
+        "| nearest neighbours (px / mm) | network, linear, neighbours vs 5-frame-smoothed contours (px) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for o in r["objects"]:
         cells = " | ".join(f"{row['px']:.2f} / {row['mm']:.2f}" for row in o["rows"])
+        cells += " | " + ", ".join(f"{row['smoothed_px']:.2f}" for row in o["rows"])
         lines.append(
             f"| {o['object']} | {o['trajectories']} ({o['samples']}) | {o['motion_px']:.2f} | "
             f"{o['validation_trajectories']} | {cells} |"

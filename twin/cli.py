@@ -511,7 +511,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         "validation_trajectories": result.validation_trajectories,
         "wall_s": result.wall_s,
         "held_out": [
-            {"predictor": e.name, "error_px": e.error_px, "error_mm": e.error_mm} for e in result.evaluations
+            {
+                "predictor": e.name,
+                "error_px": e.error_px,
+                "error_mm": e.error_mm,
+                "error_px_vs_smoothed": e.error_px_smoothed,
+            }
+            for e in result.evaluations
         ],
     }
     (out / "evaluation.json").write_text(json.dumps(report, indent=1))
@@ -520,7 +526,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 0
     print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
     for e in result.evaluations:
-        print(f"  {e.name:28s} {e.error_px:6.2f} px  {e.error_mm:6.2f} mm")
+        print(
+            f"  {e.name:28s} {e.error_px:6.2f} px  {e.error_mm:6.2f} mm  "
+            f"({e.error_px_smoothed:.2f} px vs smoothed contours)"
+        )
     print(f"wrote {out}")
     return 0
 

@@ -62,7 +62,13 @@ def run(quick: bool = False) -> dict:
                     "validation_trajectories": result.validation_trajectories,
                     "sweep_s": sweep_s,
                     "rows": [
-                        {"name": e.name, "px": e.error_px, "mm": e.error_mm} for e in result.evaluations
+                        {
+                            "name": e.name,
+                            "px": e.error_px,
+                            "mm": e.error_mm,
+                            "smoothed_px": e.error_px_smoothed,
+                        }
+                        for e in result.evaluations
                     ],
                 }
             )

@@ -22,20 +22,20 @@ def write_results(ident: Identification, out_dir: Path) -> dict[str, Path]:
     """identify.json, identify.png and identify.rrd in out_dir (created); returns their paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"results": out_dir / RESULTS_FILE, "figure": out_dir / FIGURE_FILE, "rerun": out_dir / RRD_FILE}
-    paths["results"].write_text(json.dumps(_finite(ident.to_json()), indent=2) + "\n")
+    paths["results"].write_text(json.dumps(json_safe(ident.to_json()), indent=2, allow_nan=False) + "\n")
     plot(ident, paths["figure"])
     log_rerun(ident, paths["rerun"])
     return paths
 
 
-def _finite(x: object) -> object:
+def json_safe(x: object) -> object:
     """JSON has no NaN: unknown values become null."""
     if isinstance(x, float) and not math.isfinite(x):
         return None
     if isinstance(x, dict):
-        return {k: _finite(v) for k, v in x.items()}
+        return {k: json_safe(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_finite(v) for v in x]
+        return [json_safe(v) for v in x]
     return x
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.identify.report import json_safe
 from twin.sim.fit import FitResult
 
 RESULTS_FILE = "fit.json"
@@ -18,7 +19,8 @@ def write_fit(result: FitResult, out_dir: Path) -> dict[str, Path]:
     """fit.json and fit.png in out_dir (created); returns their paths."""
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"results": out_dir / RESULTS_FILE, "figure": out_dir / FIGURE_FILE}
-    paths["results"].write_text(json.dumps(result.to_json(), indent=2) + "\n")
+    # strict JSON: a held parameter's formal sigma (NaN) becomes null
+    paths["results"].write_text(json.dumps(json_safe(result.to_json()), indent=2, allow_nan=False) + "\n")
     plot_fit(result, paths["figure"])
     return paths
 

@@ -121,9 +121,7 @@ def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
         extract = ContourExtractor(rectifier, first, box, points=trajectory.points, plane_z_m=plane_z)
         controller = TrajectoryController(trajectory)
         period = hand.spec.period_s
-        rows: dict[str, list] = {
-            k: [] for k in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm")
-        }
+        rows = _new_rows()
         lost = 0
         for k in range(int(trajectory.duration_s / period) + 1):
             world.advance_to(k * period)
@@ -144,11 +142,7 @@ def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
             rows["contour_mm"].append(contour.hand_mm)
     finally:
         backend.disconnect()
-    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()}
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, **arrays, trajectory=json.dumps(asdict(trajectory)))
-    tmp.replace(path)
-    return _entry(trajectory, path, len(arrays["t_s"]), lost)
+    return _entry(trajectory, path, _save(path, rows, trajectory), lost)
 
 
 def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) -> dict:
@@ -185,9 +179,7 @@ def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) ->
     first = rectifier.remap(decode_jpeg(stereo["left_jpeg"][0]))
     box = tuple(int(v) for v in stereo["box"][0])
     extract = ContourExtractor(rectifier, first, box, points=points, plane_z_m=plane_z)
-    rows: dict[str, list] = {
-        k: [] for k in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm")
-    }
+    rows = _new_rows()
     lost = 0
     for t, jpeg in zip(stereo.t_s, stereo["left_jpeg"], strict=True):
         left = rectifier.remap(decode_jpeg(jpeg))
@@ -222,14 +214,26 @@ def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) ->
     )
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{trajectory.name}.npz"
-    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()}
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, **arrays, trajectory=json.dumps(asdict(trajectory)), run=str(run.path))
-    tmp.replace(path)
-    entry = _entry(trajectory, path, len(arrays["t_s"]), lost) | {"run": str(run.path)}
+    entry = _entry(trajectory, path, _save(path, rows, trajectory, run=str(run.path)), lost) | {
+        "run": str(run.path)
+    }
     index_entries = {e["file"]: e for e in read_index(out_dir)} | {entry["file"]: entry}
     _write_index(out_dir, index_entries)
     return entry
+
+
+def _new_rows() -> dict[str, list]:
+    """Per-sample lists of a trajectory file's arrays."""
+    return {k: [] for k in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm")}
+
+
+def _save(path: Path, rows: dict[str, list], trajectory: Trajectory, **extra: str) -> int:
+    """Write a trajectory file whole (temporary name, then rename); returns its sample count."""
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()}
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, **arrays, trajectory=json.dumps(asdict(trajectory)), **extra)
+    tmp.replace(path)
+    return len(arrays["t_s"])
 
 
 def _entry(trajectory: Trajectory, path: Path, samples: int, lost: int) -> dict:

@@ -83,6 +83,8 @@ class Identification:
     fingers: list[FingerResult]
     material: dict | None
     notes: list[str] = field(default_factory=list)
+    grip: tuple[float, float] = (float("nan"), float("nan"))
+    """The grip's stiffness through the hand's own sensors and its 1-sigma (grip_stiffness)."""
 
     def to_json(self) -> dict:
         """The results file's content."""
@@ -91,6 +93,8 @@ class Identification:
             "model": self.model,
             "hand_terms": self.hand.to_json(),
             "fingers": [f.to_json() for f in self.fingers],
+            "grip_stiffness_nm_per_kcount": self.grip[0],
+            "grip_stiffness_sigma_nm_per_kcount": self.grip[1],
             "material": self.material,
             "notes": self.notes,
         }
@@ -116,6 +120,26 @@ def compression_window(signals: FingerSignals) -> tuple[NDArray[np.bool_], int]:
         )
     window = compress & (signals.t_s >= t0) & (signals.t_s < t0 + cycles * period)
     return window, cycles
+
+
+def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: int) -> tuple[float, float]:
+    """The whole grip's stiffness as the hand's own sensors see it: the slope of the summed distal
+    torques (strain gauges, eq. 2) against the summed drive counts over whole cycles, in N*m per 1000
+    counts, with a 1-sigma from the spread of the cycles' own slopes.
+
+    It does not care which link or pad of a finger carries the load, which is what varies from run to
+    run on soft foams (a thumb pushing with its inner link or its fingertip), so it stays steady where
+    the fingertip pads' stiffnesses do not (docs/identification.md)."""
+    drive = signals.drive_counts.sum(axis=1) / 1e3
+    torque = signals.torque_nm.sum(axis=1)
+
+    def slope(idx: NDArray[np.int64]) -> float:
+        d = drive[idx] - drive[idx].mean()
+        return float(d @ (torque[idx] - torque[idx].mean()) / (d @ d)) if d @ d > 0 else float("nan")
+
+    per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    return slope(np.flatnonzero(window)), sigma
 
 
 def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
@@ -209,12 +233,18 @@ def identify_run(
                 reaction_model_n=fit.predict(delta[window], rate[window]),
             )
         )
-    material = _material(signals, fingers[THUMB], material_map, notes)
-    return Identification(signals.run_path, model, hand, fingers, material, notes)
+    grip = grip_stiffness(signals, window, cycles)
+    features = material_features(fingers, grip)
+    material = _material(signals, features, material_map, notes)
+    return Identification(signals.run_path, model, hand, fingers, material, notes, grip)
 
 
-def material_features(thumb: FingerResult) -> dict[str, tuple[float, float]]:
-    """The thumb's stiffnesses the material mapping reads, each with its fit's 1-sigma (N/m)."""
+def material_features(
+    fingers: list[FingerResult], grip: tuple[float, float]
+) -> dict[str, tuple[float, float]]:
+    """The stiffnesses the material mapping reads (twin.identify.material.FEATURES), each with its
+    own 1-sigma."""
+    thumb = fingers[THUMB]
     kv = (
         thumb.fit
         if thumb.fit.model == "kelvin-voigt"
@@ -223,11 +253,15 @@ def material_features(thumb: FingerResult) -> dict[str, tuple[float, float]]:
     return {
         "thumb_secant_n_m": (thumb.secant_n_m, thumb.secant_sigma_n_m),
         "thumb_tangent_n_m": (kv.params["k_n_m"], kv.sigma["k_n_m"]),
+        "grip_nm_per_kcount": grip,
     }
 
 
 def _material(
-    signals: FingerSignals, thumb: FingerResult, material_map: MaterialMap | None, notes: list[str]
+    signals: FingerSignals,
+    features: dict[str, tuple[float, float]],
+    material_map: MaterialMap | None,
+    notes: list[str],
 ) -> dict | None:
     obj = signals.metadata.get("object") or {}
     experiment_object = signals.metadata.get("experiment", {}).get("object")
@@ -239,7 +273,7 @@ def _material(
         return None
     try:
         mapping = material_map or MaterialMap.load()
-        estimate = mapping.estimate(obj["shape"], max(obj["size_m"]), material_features(thumb))
+        estimate = mapping.estimate(obj["shape"], max(obj["size_m"]), features)
     except MappingError as exc:
         notes.append(f"no modulus estimate: {exc}")
         return None
@@ -248,5 +282,5 @@ def _material(
         out["twin_young_pa"] = obj["young_pa"]  # the twin knows its material: report the error
         out["error"] = estimate.young_pa / obj["young_pa"] - 1.0
     if estimate.extrapolated:
-        notes.append("the thumb's stiffness lies outside the mapping's grid: the modulus is extrapolated")
+        notes.append("no stiffness lies inside the mapping's valid range: the modulus is extrapolated")
     return out

@@ -36,6 +36,8 @@ MAP_FILE = Path(__file__).with_name("material_map.json")
 FEATURES = {
     "thumb_secant_n_m": "F3 secant contact stiffness: mean R / mean delta over whole cycles (N/m)",
     "thumb_tangent_n_m": "F3 tangent contact stiffness: Kelvin-Voigt k over the cycles (N/m)",
+    "grip_nm_per_kcount": "summed distal torques (gauges) against summed drive counts over the cycles "
+    "(N*m per 1000 counts)",
 }
 MIN_POINTS = 5
 Z95 = 1.96
@@ -62,6 +64,13 @@ class Curve:
     """Leave-one-out RMS error of ln E over the grid (interior points)."""
     young_range_pa: tuple[float, float]
     """Moduli over which the sweep's stiffness rose monotonically: where the curve is valid."""
+    folded_log_k: tuple[tuple[float, float], ...] = ()
+    """ln k intervals inside the valid range that the sweep also reached outside it (where the stiffness
+    falls again, or rose from a softer regime): a stiffness there has two moduli, so it is ambiguous."""
+
+    def is_folded(self, log_k: float) -> bool:
+        """Whether a stiffness here is also reached outside the valid range."""
+        return any(lo < log_k < hi for lo, hi in self.folded_log_k)
 
     @property
     def log_k_range(self) -> tuple[float, float]:
@@ -92,6 +101,7 @@ class Curve:
             "knots_noise_log_k": list(self.knots_noise_log_k),
             "loo_rms_log": self.loo_rms_log,
             "young_range_pa": list(self.young_range_pa),
+            "folded_log_k": [list(f) for f in self.folded_log_k],
         }
 
     @classmethod
@@ -105,6 +115,7 @@ class Curve:
             knots_noise_log_k=tuple(map(float, c["knots_noise_log_k"])),
             loo_rms_log=float(c["loo_rms_log"]),
             young_range_pa=(float(c["young_range_pa"][0]), float(c["young_range_pa"][1])),
+            folded_log_k=tuple((float(lo), float(hi)) for lo, hi in c.get("folded_log_k", [])),
         )
 
 
@@ -129,6 +140,19 @@ class MaterialEstimate:
             "extrapolated": self.extrapolated,
             "features": self.components,
         }
+
+
+def _combine(parts: list[dict]) -> tuple[float, float]:
+    """Inverse-variance mean of the parts' ln E and its 1-sigma, widened by the Birge ratio when they
+    disagree beyond their sigmas."""
+    w = np.array([1.0 / p["sigma_log"] ** 2 for p in parts])
+    mu = np.array([p["log_e"] for p in parts])
+    log_e = float(np.sum(w * mu) / np.sum(w))
+    sigma = math.sqrt(1.0 / np.sum(w))
+    if len(parts) > 1:
+        chi2 = float(np.sum(w * (mu - log_e) ** 2)) / (len(parts) - 1)
+        sigma *= max(1.0, math.sqrt(chi2))
+    return log_e, sigma
 
 
 def _interp(x0: float, x: np.ndarray | tuple, y: np.ndarray | tuple) -> float:
@@ -165,6 +189,7 @@ def fit_curve(
     young, k = np.asarray(young_pa, float)[order], np.asarray(stiffness_n_m, float)[order]
     noise = np.zeros_like(k) if noise_log_k is None else np.nan_to_num(np.asarray(noise_log_k, float)[order])
     span = monotone_span(young, k)
+    folded = _folded(k, span)
     young, k, noise = young[span], k[span], noise[span]
     if len(young) < MIN_POINTS:
         raise MappingError(
@@ -189,7 +214,22 @@ def fit_curve(
         knots_noise_log_k=tuple(map(float, noise)),
         loo_rms_log=float(np.sqrt(np.mean(np.square(errors)))),
         young_range_pa=(float(young[0]), float(young[-1])),
+        folded_log_k=folded,
     )
+
+
+def _folded(k: np.ndarray, span: slice) -> tuple[tuple[float, float], ...]:
+    """ln k intervals of the span's stiffness range that the grid also reaches outside the span (k in E
+    order). Each side's branch runs continuously from the span's end knot through its own points."""
+    inside = k[span]
+    lo, hi = float(np.log(inside[0])), float(np.log(inside[-1]))
+    out = []
+    for branch, end in ((k[: span.start], inside[0]), (k[span.stop :], inside[-1])):
+        reached = np.log(np.append(branch[branch > 0], end))
+        a, b = max(float(reached.min()), lo), min(float(reached.max()), hi)
+        if b - a > 1e-12:
+            out.append((a, b))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -259,14 +299,16 @@ class MaterialMap:
                 f"{sizes[-1] * 1e3:.0f} mm, positive stiffness needed)"
             )
         inside = [p for p in parts if not p["extrapolated"]]
-        used = inside or parts
-        w = np.array([1.0 / p["sigma_log"] ** 2 for p in used])
-        mu = np.array([p["log_e"] for p in used])
-        log_e = float(np.sum(w * mu) / np.sum(w))
-        sigma = math.sqrt(1.0 / np.sum(w))
-        if len(used) > 1:  # Birge ratio: widen when the features disagree beyond their sigmas
-            chi2 = float(np.sum(w * (mu - log_e) ** 2)) / (len(used) - 1)
-            sigma *= max(1.0, math.sqrt(chi2))
+        clear = [p for p in inside if not p["ambiguous"]]
+        used = clear or inside or parts
+        if clear:  # an ambiguous feature joins when the clear ones pick its valid branch
+            log_e, sigma = _combine(clear)
+            used = clear + [
+                p
+                for p in inside
+                if p["ambiguous"] and abs(p["log_e"] - log_e) <= Z95 * math.hypot(sigma, p["sigma_log"])
+            ]
+        log_e, sigma = _combine(used)
         for p in parts:
             p["used"] = p in used
             p["young_pa"] = math.exp(p.pop("log_e"))
@@ -310,4 +352,5 @@ class MaterialMap:
             "log_e": log_e,
             "sigma_log": max(sigma_log, 1e-6),
             "extrapolated": extrapolated,
+            "ambiguous": any(c.is_folded(log_k) for c in used),
         }

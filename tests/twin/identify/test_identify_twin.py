@@ -9,7 +9,7 @@ import pytest
 from tests.twin.identify.conftest import SPHERE_YOUNG_PA
 from twin.cli import main
 from twin.identify.hand_dynamics import identify_hand
-from twin.identify.identify import identify_run
+from twin.identify.identify import compression_window, grip_stiffness, identify_run
 from twin.identify.signals import MissingStreamError, load_signals
 from twin.recording.reader import Run
 from twin.viz.rerun_log import read_rrd_scalars
@@ -28,6 +28,28 @@ def test_the_modulus_of_an_unseen_foam_is_recovered_within_its_interval(ident):
     assert m["twin_young_pa"] == SPHERE_YOUNG_PA and m["error"] == pytest.approx(
         m["young_pa"] / SPHERE_YOUNG_PA - 1
     )
+
+
+def test_the_grip_stiffness_alone_recovers_the_modulus(ident):
+    """The hand's own sensors (encoders and gauges, no pads) map to E on their own, inside the interval."""
+    grip = next(f for f in ident.material["features"] if f["feature"] == "grip_nm_per_kcount")
+    assert grip["used"] and not grip["extrapolated"]
+    assert abs(grip["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10
+    k, sigma = ident.grip
+    assert k > 0 and 0 < sigma < 0.05 * k  # steady from cycle to cycle
+
+
+def test_grip_stiffness_is_the_slope_of_summed_torque_on_summed_drive(sphere_run):
+    """On the run's own signals with a known law written over the gauges: slope and 1-sigma come back."""
+    signals = load_signals(sphere_run)
+    window, cycles = compression_window(signals)
+    rng = np.random.default_rng(0)
+    drive = signals.drive_counts.sum(axis=1)
+    law = 0.25 + 0.2e-3 * drive  # 0.2 N*m per 1000 counts
+    noise = rng.normal(0, 0.01, len(drive))
+    signals.torque_nm = np.column_stack([law + noise, np.zeros_like(law), np.zeros_like(law)])
+    k, sigma = grip_stiffness(signals, window, cycles)
+    assert k == pytest.approx(0.2, abs=4 * sigma) and sigma < 0.02
 
 
 def test_eq4_balances_at_the_distal_joint(ident, sphere_run):

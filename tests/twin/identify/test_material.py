@@ -9,7 +9,7 @@ import pytest
 
 from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve, monotone_span
 
-SECANT, TANGENT = FEATURES
+SECANT, TANGENT, GRIP = FEATURES
 
 
 def test_monotone_span_keeps_the_longest_rising_positive_run():
@@ -88,6 +88,38 @@ def test_objects_outside_the_mapping_get_one_clear_error():
     with pytest.raises(MappingError, match="no feature maps here"):
         mapping.estimate("sphere", 0.07, {SECANT: (-5.0, 0.0)})
     assert mapping.estimate("sphere", 0.06, {SECANT: (1.0, 0.0)}).extrapolated
+
+
+def test_a_folded_feature_is_used_only_where_the_clear_ones_pick_its_branch(tmp_path):
+    """A feature whose softest grid points reach stiffnesses of its valid range (another grasp regime)
+    is ambiguous there: it joins the estimate when a clear feature agrees with its valid branch, and is
+    set aside when the foam is really on the other branch."""
+    young = np.geomspace(1e4, 3e5, 12)
+    k = _law(TANGENT, 0.07, young)
+    k[:2] = k[6], k[5]  # the two softest foams read like the seventh and sixth
+    folded = fit_curve(0.07, k, young, None, GRIP)
+    assert folded.young_range_pa[0] == pytest.approx(young[2])
+    assert folded.folded_log_k == (pytest.approx((math.log(k[2]), math.log(k[6]))),)
+    clear = fit_curve(0.07, _law(SECANT, 0.07, young), young, np.full(12, 0.05), SECANT)
+    mapping = MaterialMap(curves={"sphere": [clear, folded]}, provenance={})
+
+    mid = float(np.sqrt(young[3] * young[4]))  # inside the folded range, on the valid branch
+    est = mapping.estimate(
+        "sphere",
+        0.07,
+        {SECANT: (float(_law(SECANT, 0.07, mid)), 0.0), GRIP: (float(_law(TANGENT, 0.07, mid)), 0.0)},
+    )
+    grip = next(p for p in est.components if p["feature"] == GRIP)
+    assert grip["ambiguous"] and grip["used"] and est.young_pa == pytest.approx(mid, rel=0.01)
+
+    soft = float(young[1])  # the other branch: the grip alone would say young[5], 2.7 times stiffer
+    est = mapping.estimate(
+        "sphere", 0.07, {SECANT: (float(_law(SECANT, 0.07, soft)), 0.0), GRIP: (float(k[1]), 0.0)}
+    )
+    grip = next(p for p in est.components if p["feature"] == GRIP)
+    assert grip["ambiguous"] and not grip["used"] and est.young_pa == pytest.approx(soft, rel=0.01)
+    again = MaterialMap.load(mapping.save(tmp_path / "map.json"))
+    assert next(c for c in again.curves["sphere"] if c.feature == GRIP).folded_log_k == folded.folded_log_k
 
 
 def test_too_few_monotone_points_cannot_make_a_curve():

@@ -26,6 +26,7 @@ SECTIONS = (
     "stereo_run",
     "identification",
     "shape_network",
+    "sweep_throughput",
 )
 
 

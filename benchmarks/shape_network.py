@@ -1,48 +1,130 @@
-"""The shape network (paper §7) on a twin sweep: contour error on whole held-out trajectories against
-two baselines, inference time at batch size 1, and sweep throughput with 1 and 2 worker processes.
+"""The shape network (paper §7) on a twin sweep: the contour measurement against the twin's true
+silhouette (jitter and error, first version's pixel staircase and the sub-pixel likelihood boundary),
+contour error on whole held-out trajectories against two baselines (both contour targets), the 3-D
+variant's height error against the measured and the true surface, and inference time at batch size 1.
+Sweep throughput is its own section (benchmarks/sweep_throughput.py): it measures the machine, and must
+not share the cores with this half-hour of sweeps and training.
 """
 
 from __future__ import annotations
 
+import itertools
+import os
 import tempfile
 import time
 import timeit
+import warnings
 from pathlib import Path
 
-from experiments.sweep import draw_trajectories, sweep
+import numpy as np
+
+from experiments.sweep import TrajectoryController, draw_trajectories, sweep
 
 OBJECTS = {"block": 24, "cylinder": 24, "sphere": 12}
 """Trajectories per object. The cylinder's contour moves most under the fingers (4.7 px per point),
 the block's ~1 px, the sphere's barely (0.1 px): the sphere alone would make any predictor look good."""
-OBJECT = "block"
-"""The object of the throughput measurement."""
 DURATION_S = 20.0
 POINTS = 32
-THROUGHPUT_TRAJECTORIES = 4
-THROUGHPUT_DURATION_S = 20.0
-"""Long enough that starting the worker processes (spawned: ~2 s of imports each) is amortized, as
-in any real sweep."""
+SURFACE_OBJECT, SURFACE_TRAJECTORIES = "block", 12
+"""The 3-D variant on the block: the fingers leave most of its top in view (the rounder foams, which
+they wrap, leave slivers)."""
+MEASUREMENT_S = 12.0
+"""One trajectory per object for the measurement check: the grasp, then ~8 s under the fingers."""
+REST_FRAMES = 30
 
 
-def _throughput(tmp: Path, workers: int, quick: bool) -> float:
-    """Trajectory-seconds simulated per wall second with `workers` processes."""
-    n = 2 if quick else THROUGHPUT_TRAJECTORIES
-    duration = 7.0 if quick else THROUGHPUT_DURATION_S
-    trajectories = draw_trajectories([OBJECT], n, seed=99, duration_s=duration, points=POINTS)
-    t0 = time.perf_counter()
-    sweep(trajectories, tmp / f"throughput-{workers}", workers=workers)
-    return n * duration / (time.perf_counter() - t0)
+def _measurement(obj: str, duration_s: float) -> list[dict]:
+    """Each boundary and target against the twin's true silhouette: at rest (the same scene, fresh
+    camera noise each frame) and under the fingers (every 2nd frame of one trajectory's compression).
+
+    jitter: the mean point distance between consecutive frames' errors (contour minus true contour),
+    i.e. the frame-to-frame change the true silhouette's own motion does not explain; error: the mean
+    point distance to the true contour. The true contour is the true visible mask's sub-pixel outline
+    (twin.vision.contour.outlines), taken the same way for both targets."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from twin.sim.backend import SimBackend
+    from twin.sim.cameras import LEFT_CAMERA
+    from twin.sim.foam import get_object
+    from twin.vision.contour import BOUNDARIES, ContourExtractor, hull, outlines, resample
+    from twin.vision.reconstruct import Rectifier
+
+    (trajectory,) = draw_trajectories([obj], 1, seed=0, duration_s=duration_s, points=POINTS)
+    backend = SimBackend(get_object(obj), seed=trajectory.seed, stereo=True, tactile=False)
+    backend.connect()
+    keys = [(b, t) for b in BOUNDARIES for t in ("largest", "hull")]
+    errors = {(phase, *k): [] for phase in ("rest", "fingers") for k in keys}
+    try:
+        rectifier = Rectifier(backend.stereo.calibration())
+        box = backend.object_box(rectifier)
+        first = rectifier.remap(backend.stereo.read_view(LEFT_CAMERA))
+        extract = {b: ContourExtractor(rectifier, first, box, points=POINTS, boundary=b) for b in BOUNDARIES}
+
+        def frame(phase: str) -> None:
+            left = rectifier.remap(backend.stereo.read_view(LEFT_CAMERA))
+            true = outlines(backend.surface_truth(rectifier).visible)
+            truth = {"largest": resample(true[0], POINTS), "hull": resample(hull(true), POINTS)}
+            for b, ex in extract.items():
+                c = ex(left)
+                for t, pixels in (("largest", c.pixels), ("hull", c.hull_pixels)):
+                    errors[phase, b, t].append(pixels - truth[t])
+
+        for _ in range(REST_FRAMES):
+            frame("rest")
+        controller = TrajectoryController(trajectory)
+        period = backend.hand.spec.period_s
+        for k in range(int(duration_s / period) + 1):
+            backend.world.advance_to(k * period)
+            reading = backend.hand.read()
+            backend.hand.command(controller(reading))
+            if controller.phase == "compress" and k % 2 == 0:
+                frame("fingers")
+    finally:
+        backend.disconnect()
+    rows = []
+    for (phase, b, t), e in errors.items():
+        rows.append(
+            {
+                "object": obj,
+                "phase": phase,
+                "boundary": b,
+                "target": t,
+                "frames": len(e),
+                "jitter_px": float(
+                    np.mean([np.linalg.norm(x - y, axis=1).mean() for x, y in itertools.pairwise(e)])
+                ),
+                "error_px": float(np.mean([np.linalg.norm(x, axis=1).mean() for x in e])),
+            }
+        )
+    return rows
+
+
+def _motion_mm(heights_mm: np.ndarray) -> float:
+    """Mean over the cells of each observed cell's height standard deviation."""
+    with warnings.catch_warnings():  # cells never observed: NaN, left out
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return float(np.nanmean(np.nanstd(heights_mm, axis=0)))
+
+
+def _rows(evaluations: list) -> list[dict]:
+    return [
+        {"name": e.name, "px": e.error_px, "mm": e.error_mm, "smoothed_px": e.error_px_smoothed}
+        for e in evaluations
+    ]
 
 
 def run(quick: bool = False) -> dict:
-    """Sweep, train, evaluate, time."""
-    from twin.shape.dataset import load_dataset
+    """Measure the contours, sweep, train, evaluate, time."""
+    from twin.shape.dataset import load_dataset, load_surface_dataset
+    from twin.shape.surface_train import train_surface
     from twin.shape.train import train
 
+    measurement = []
+    measurement_s = 7.0 if quick else MEASUREMENT_S
+    for obj in ("sphere",) if quick else OBJECTS:
+        measurement += _measurement(obj, measurement_s)
+    epochs = 300 if quick else 3000
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
-        rate_1 = _throughput(tmp, 1, quick)
-        rate_2 = _throughput(tmp, 2, quick)
         objects = {"sphere": 4} if quick else OBJECTS
         duration = 8.0 if quick else DURATION_S
         per_object = []
@@ -51,27 +133,43 @@ def run(quick: bool = False) -> dict:
             t0 = time.perf_counter()
             sweep(trajectories, tmp / "dataset", workers=2)
             sweep_s = time.perf_counter() - t0
-            data = load_dataset(tmp / "dataset", obj)
-            result = train(data, epochs=300 if quick else 3000, seed=0)
-            per_object.append(
-                {
-                    "object": obj,
-                    "trajectories": n,
-                    "samples": len(data),
-                    "motion_px": float(data.contour_px.std(axis=0).mean()),
-                    "validation_trajectories": result.validation_trajectories,
-                    "sweep_s": sweep_s,
-                    "rows": [
-                        {
-                            "name": e.name,
-                            "px": e.error_px,
-                            "mm": e.error_mm,
-                            "smoothed_px": e.error_px_smoothed,
-                        }
-                        for e in result.evaluations
-                    ],
-                }
-            )
+            for target in ("largest", "hull"):
+                data = load_dataset(tmp / "dataset", obj, target)
+                result = train(data, epochs=epochs, seed=0)
+                per_object.append(
+                    {
+                        "object": obj,
+                        "target": target,
+                        "trajectories": n,
+                        "samples": len(data),
+                        "motion_px": float(data.contour_px.std(axis=0).mean()),
+                        "validation_trajectories": result.validation_trajectories,
+                        "sweep_s": sweep_s,
+                        "rows": _rows(result.evaluations),
+                    }
+                )
+        n_surface = 3 if quick else SURFACE_TRAJECTORIES
+        trajectories = draw_trajectories(
+            [SURFACE_OBJECT], n_surface, seed=0, duration_s=duration, points=POINTS, surface=True
+        )
+        t0 = time.perf_counter()
+        sweep(trajectories, tmp / "surface", workers=2)
+        surface_sweep_s = time.perf_counter() - t0
+        surface_data = load_surface_dataset(tmp / "surface", SURFACE_OBJECT)
+        s = train_surface(surface_data, epochs=epochs, seed=0)
+        surface = {
+            "object": SURFACE_OBJECT,
+            "trajectories": n_surface,
+            "samples": len(surface_data),
+            "sweep_s": surface_sweep_s,
+            "cells": surface_data.heights_mm.shape[1],
+            "modelled_cells": s.modelled_cells,
+            "observed_fraction": s.observed_fraction,
+            "motion_mm": _motion_mm(surface_data.heights_mm),
+            "measured_vs_truth_mm": s.measured_truth_error_mm,
+            "validation_trajectories": s.validation_trajectories,
+            "rows": [{"name": e.name, "mm": e.error_mm, "truth_mm": e.truth_error_mm} for e in s.evaluations],
+        }
     model = result.model
     x = data.inputs[:1]
     number = 2000 if quick else 20000
@@ -82,10 +180,11 @@ def run(quick: bool = False) -> dict:
         * 1e6
     )
     return {
+        "measurement": measurement,
+        "measurement_s": measurement_s,
         "objects": per_object,
+        "surface": surface,
         "duration_s": duration,
-        "rate_1": rate_1,
-        "rate_2": rate_2,
         "numpy_us": numpy_us,
         "torch_us": torch_us,
     }
@@ -97,28 +196,70 @@ def to_markdown(results: dict) -> str:
     lines = [
         "## Shape network (paper §7): contours from finger positions and torques",
         "",
-        f"Per object: `twin sweep --trajectories N --duration {r['duration_s']:g}` ({POINTS} contour points, "
-        "2 workers), then `twin train`: 25 % of the trajectories held out whole, never seen in training. "
-        "'Motion' is how much the measured contour moves: the per-point standard deviation over the dataset.",
+        "**The contour measurement** against the twin's true silhouette (the true visible mask's "
+        f"sub-pixel outline), one trajectory per object (seed 0, {r['measurement_s']:g} s): at rest "
+        f"({REST_FRAMES} frames of the same scene, fresh camera noise each) and under the fingers (every "
+        "2nd frame of the compression). 'Jitter': the mean point distance between consecutive frames' "
+        "errors, the change the true silhouette's own motion does not explain. 'pixels': the first "
+        "version's staircase of the thresholded mask; 'likelihood': the sub-pixel iso-line of the "
+        "blurred back-projection (the default).",
         "",
-        "| object | trajectories (samples) | motion (px) | held out | network (px / mm) | linear (px / mm) "
-        "| nearest neighbours (px / mm) | network, linear, neighbours vs 5-frame-smoothed contours (px) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| object | target | at rest: jitter, pixels → likelihood (px) | error (px) "
+        "| under the fingers: jitter (px) | error (px) |",
+        "|---|---|---|---|---|---|",
+    ]
+    m = {(x["object"], x["phase"], x["boundary"], x["target"]): x for x in r["measurement"]}
+    for obj, target in sorted(
+        {(x["object"], x["target"]) for x in r["measurement"]}, key=lambda k: (k[0], k[1] == "hull")
+    ):
+        cells = []
+        for phase in ("rest", "fingers"):
+            a, b = m[obj, phase, "pixels", target], m[obj, phase, "likelihood", target]
+            cells.append(f"{a['jitter_px']:.2f} → **{b['jitter_px']:.2f}**")
+            cells.append(f"{a['error_px']:.2f} → **{b['error_px']:.2f}**")
+        lines.append(f"| {obj} | {target} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "**Held-out contour error.** Per object: "
+        f"`twin sweep --trajectories N --duration {r['duration_s']:g}` "
+        f"({POINTS} contour points, 2 workers), then `twin train --target largest|hull`: 25 % of the "
+        "trajectories held out whole, never seen in training. 'largest': the largest visible piece's "
+        "outline (the paper's contour); 'hull': the convex hull of all visible pieces. 'Motion' is how much "
+        "the measured contour moves: the per-point standard deviation over the dataset.",
+        "",
+        "| object | target | trajectories (samples) | motion (px) | held out | network (px / mm) "
+        "| linear (px / mm) | nearest neighbours (px / mm) "
+        "| network, linear, neighbours vs 5-frame-smoothed contours (px) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for o in r["objects"]:
         cells = " | ".join(f"{row['px']:.2f} / {row['mm']:.2f}" for row in o["rows"])
         cells += " | " + ", ".join(f"{row['smoothed_px']:.2f}" for row in o["rows"])
         lines.append(
-            f"| {o['object']} | {o['trajectories']} ({o['samples']}) | {o['motion_px']:.2f} | "
-            f"{o['validation_trajectories']} | {cells} |"
+            f"| {o['object']} | {o['target']} | {o['trajectories']} ({o['samples']}) | "
+            f"{o['motion_px']:.2f} | {o['validation_trajectories']} | {cells} |"
         )
+    s = r["surface"]
+    side = round(s["cells"] ** 0.5)
+    lines += [
+        "",
+        f"**3-D variant** (`twin sweep --surface`, `twin train --target surface`), {s['object']}: "
+        f"{s['trajectories']} trajectories ({s['samples']} samples), the fused cloud's heights on a "
+        f"{side}×{side} hand-frame grid; {s['modelled_cells']} cells observed often enough to model, "
+        f"{100 * s['observed_fraction']:.0f} % of the held-out (sample, cell) pairs observed; "
+        f"heights move {s['motion_mm']:.2f} mm (per-cell "
+        f"standard deviation). The measured heights' own error against the true surface: "
+        f"{s['measured_vs_truth_mm']:.2f} mm. Held out: {s['validation_trajectories']}.",
+        "",
+        "| predictor | vs measured heights (mm) | vs the true surface (mm) |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {row['name']} | {row['mm']:.2f} | {row['truth_mm']:.2f} |" for row in s["rows"]]
     lines += [
         "",
         f"Inference at batch size 1 on the CPU: **{r['numpy_us']:.1f} µs** per prediction (numpy, the "
         f"normalization folded into the weights), {r['torch_us']:.0f} µs through torch.",
         "",
-        f"Sweep throughput ({THROUGHPUT_TRAJECTORIES} trajectories of {THROUGHPUT_DURATION_S:g} s): "
-        f"{r['rate_1']:.2f} trajectory-seconds per second with 1 worker, {r['rate_2']:.2f} with 2: "
-        f"**{r['rate_2'] / r['rate_1']:.2f}x**.",
+        "Sweep throughput: section *Sweep throughput* below, measured on its own.",
     ]
     return "\n".join(lines) + "\n"

@@ -141,6 +141,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--address", help="ray: the cluster's address (default: a local Ray instance)")
     p.add_argument("--duration", type=float, default=20.0, metavar="S", help="length of each trajectory (s)")
     p.add_argument("--points", type=int, default=32, metavar="n", help="contour points")
+    p.add_argument(
+        "--surface",
+        action="store_true",
+        help="also keep the fused 3-D surface as heights on a hand-frame grid (about twice the cost)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True, metavar="DATASET", help="dataset directory (resumable)")
     p.add_argument(
@@ -156,7 +161,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", type=Path, metavar="DATASET", help="a `twin sweep` directory")
     p.add_argument("--object", required=True, help="the object whose network to train")
     p.add_argument(
-        "--out", type=Path, metavar="DIR", help="where the model goes (default DATASET/models/OBJECT)"
+        "--target",
+        choices=("largest", "hull", "surface"),
+        default="largest",
+        help="largest: the largest visible piece's contour (the paper's); hull: the hull of all visible "
+        "pieces; surface: the fused 3-D surface's heights (a dataset swept with --surface)",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help="where the model goes (default DATASET/models/OBJECT, or OBJECT-TARGET for other targets)",
     )
     p.add_argument("--epochs", type=int, default=3000)
     p.add_argument(
@@ -269,6 +284,8 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             shape_model = ShapeModel.load(args.predict)
         except ValueError as exc:
             raise ConfigError(f"--predict {exc}") from None
+        if shape_model.target == "surface":
+            raise ConfigError("--predict: a surface model (--target surface); live prediction takes contours")
         trained_on = shape_model.metadata.get("object")
         if trained_on and trained_on != foam.name:
             raise ConfigError(
@@ -388,6 +405,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             f"secant {f.secant_n_m:.0f} N/m; "
             f"moment arm {f.moment_arm_m * 1e3:.1f} mm; eq. 4 residual {f.eq4_residual_rms_nm:.3f} N*m"
         )
+    print(f"grip: {ident.grip[0]:.4f} +- {ident.grip[1]:.4f} N*m per 1000 counts (gauges against drives)")
     m = ident.material
     if m:
         low, high = (v / 1e3 for v in m["ci95_pa"])
@@ -395,10 +413,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
         if "twin_young_pa" in m:
             line += f"; the twin's E {m['twin_young_pa'] / 1e3:.2f} kPa, error {100 * m['error']:+.1f} %"
         print(line)
+        print("  by feature: " + "; ".join(_feature_summary(c) for c in m["features"]))
     for note in ident.notes:
         print(f"note: {note}")
     print(f"wrote {paths['results']}, {paths['figure'].name}, {paths['rerun'].name}")
     return 0
+
+
+def _feature_summary(part: dict) -> str:
+    """One mapping feature's own estimate, and why it was left out if it was."""
+    why = "outside its valid range" if part["extrapolated"] else "on a folded stretch of its curve"
+    return f"{part['feature']} {part['young_pa'] / 1e3:.1f} kPa" + (
+        "" if part["used"] else f" (not used: {why})"
+    )
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
@@ -464,7 +491,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         get_object(name)  # unknown names fail here, in one line
     if args.trajectories < 1 or args.duration <= 5.0 or args.points < 3:
         raise ConfigError("--trajectories >= 1, --duration > 5 s (the grasp takes ~4 s) and --points >= 3")
-    trajectories = draw_trajectories(args.objects, args.trajectories, args.seed, args.duration, args.points)
+    trajectories = draw_trajectories(
+        args.objects, args.trajectories, args.seed, args.duration, args.points, surface=args.surface
+    )
     kwargs = {"workers": args.workers, "executor": args.executor, "address": args.address}
     if args.no_progress:
         entries = sweep(trajectories, args.out, **kwargs)
@@ -491,19 +520,20 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     if not 0 < args.validation < 1 or args.epochs < 1:
         raise ConfigError("--validation must be in (0, 1) and --epochs >= 1")
-    data = load_dataset(args.dataset, args.object)
+    metadata = {
+        "object": args.object,
+        "target": args.target,
+        "dataset": str(args.dataset),
+        "inputs": ["p1", "p2", "p3", "T1", "T2", "T3"],
+    }
+    name = args.object if args.target == "largest" else f"{args.object}-{args.target}"
+    if args.target == "surface":
+        return _train_surface(args, metadata, args.out or args.dataset / "models" / name)
+    data = load_dataset(args.dataset, args.object, args.target)
     result = train(
-        data,
-        validation_fraction=args.validation,
-        seed=args.seed,
-        epochs=args.epochs,
-        metadata={
-            "object": args.object,
-            "dataset": str(args.dataset),
-            "inputs": ["p1", "p2", "p3", "T1", "T2", "T3"],
-        },
+        data, validation_fraction=args.validation, seed=args.seed, epochs=args.epochs, metadata=metadata
     )
-    out = result.model.save(args.out or args.dataset / "models" / args.object)
+    out = result.model.save(args.out or args.dataset / "models" / name)
     report = {
         "model": str(out),
         "train_samples": result.train_samples,
@@ -532,6 +562,56 @@ def cmd_train(args: argparse.Namespace) -> int:
         )
     print(f"wrote {out}")
     return 0
+
+
+def _train_surface(args: argparse.Namespace, metadata: dict, out_dir: Path) -> int:
+    """`twin train --target surface`: the 3-D variant and its baselines, heights in mm."""
+    from twin.shape.dataset import load_surface_dataset
+    from twin.shape.surface_train import train_surface
+
+    data = load_surface_dataset(args.dataset, args.object)
+    result = train_surface(
+        data, validation_fraction=args.validation, seed=args.seed, epochs=args.epochs, metadata=metadata
+    )
+    out = result.model.save(out_dir)
+    report = {
+        "model": str(out),
+        "train_samples": result.train_samples,
+        "validation_samples": result.validation_samples,
+        "validation_trajectories": result.validation_trajectories,
+        "modelled_cells": result.modelled_cells,
+        "observed_fraction": result.observed_fraction,
+        "measured_vs_truth_mm": result.measured_truth_error_mm,
+        "wall_s": result.wall_s,
+        "held_out": [
+            {"predictor": e.name, "error_mm": e.error_mm, "error_mm_vs_truth": e.truth_error_mm}
+            for e in result.evaluations
+        ],
+    }
+    (out / "evaluation.json").write_text(json.dumps(_nan_to_null(report), indent=1))
+    if args.json:
+        print(json.dumps(_nan_to_null(report), indent=1))
+        return 0
+    print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
+    print(
+        f"  {result.modelled_cells} grid cells modelled; {100 * result.observed_fraction:.0f} % of held-out "
+        f"cells observed; measured heights vs the true surface: {result.measured_truth_error_mm:.2f} mm"
+    )
+    for e in result.evaluations:
+        print(f"  {e.name:28s} {e.error_mm:6.2f} mm vs measured  {e.truth_error_mm:6.2f} mm vs true surface")
+    print(f"wrote {out}")
+    return 0
+
+
+def _nan_to_null(value: object) -> object:
+    """A report with NaN floats as None (strict JSON)."""
+    if isinstance(value, dict):
+        return {k: _nan_to_null(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_nan_to_null(v) for v in value]
+    if isinstance(value, float) and value != value:
+        return None
+    return value
 
 
 def _surface_summary(truth: dict) -> str:

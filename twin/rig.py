@@ -35,7 +35,7 @@ from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
-from twin.vision.contour import ContourError, outer_contour, resample
+from twin.vision.contour import ContourError, hull, outlines, resample
 from twin.vision.pipeline import StereoPipeline, SurfaceFrame, stereo_stream_spec
 
 if TYPE_CHECKING:
@@ -446,12 +446,27 @@ class Rig:
 
     def _process_frame(
         self, pending: Future[StereoFrame], tactile_points: np.ndarray, truth: object
-    ) -> tuple[StereoFrame, SurfaceFrame, dict | None]:
-        """On the vision worker: take the pair, reconstruct and fuse, score against the truth if known."""
+    ) -> tuple[StereoFrame, SurfaceFrame, dict | None, np.ndarray | None]:
+        """On the vision worker: take the pair, reconstruct and fuse, score against the truth if known,
+        and trace the measured contour when a shape model predicts one."""
         frame = pending.result()
         surface = self.stereo_pipeline.process(frame, tactile_points)
         r = surface.reconstruction
-        return frame, surface, self.backend.score_surface(truth, r.points_hand, r.pixels)
+        score = self.backend.score_surface(truth, r.points_hand, r.pixels)
+        return frame, surface, score, self._measured_contour(frame, surface)
+
+    def _measured_contour(self, frame: StereoFrame, surface: SurfaceFrame) -> np.ndarray | None:
+        """The camera's contour of this frame, traced as the model's training targets were: the
+        sub-pixel boundary of the tracker's likelihood (twin.vision.contour), the model's target."""
+        model, pipeline = self.shape_model, self.stereo_pipeline
+        if model is None or pipeline.tracker is None or not surface.reconstruction.mask.any():
+            return None
+        left_rect = pipeline.rectifier.remap(frame.left, "left")
+        try:
+            pieces = outlines(surface.reconstruction.mask, pipeline.tracker.back_project(left_rect))
+            return resample(hull(pieces) if model.target == "hull" else pieces[0], model.points)
+        except ContourError:
+            return None
 
     def _record_stereo(self, wait: bool) -> None:
         """Record finished frames in order (all of them when `wait`); a worker's error is raised here."""
@@ -459,24 +474,19 @@ class Rig:
             self._record_stereo_oldest()
 
     def _record_stereo_oldest(self) -> None:
-        frame, surface, score = self._stereo_jobs.popleft().result()
-        self._record_surface(frame, surface)
+        frame, surface, score, measured = self._stereo_jobs.popleft().result()
+        self._record_surface(frame, surface, measured)
         if score is not None:
             self.surface_scores.append(score)
             self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
 
-    def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame) -> None:
+    def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame, measured: np.ndarray | None) -> None:
         self._record("stereo", frame.t_s, surface.record())
-        if self.shape_model is not None and surface.reconstruction.mask.any():
-            try:
-                measured = resample(outer_contour(surface.reconstruction.mask), self.shape_model.points)
-            except ContourError:
-                measured = None
-            if measured is not None:
-                self._record("contour", frame.t_s, {"contour_px": measured})
-                log_contour = getattr(self.viewer, "log_contour", None)
-                if log_contour is not None:
-                    log_contour(frame.t_s, "measured", measured)
+        if measured is not None:
+            self._record("contour", frame.t_s, {"contour_px": measured})
+            log_contour = getattr(self.viewer, "log_contour", None)
+            if log_contour is not None:
+                log_contour(frame.t_s, "measured", measured)
         log_stereo = getattr(self.viewer, "log_stereo", None)
         if log_stereo is not None:
             log_stereo(

@@ -47,9 +47,10 @@ def test_a_local_sweep_writes_whole_files_and_an_index(local_dataset):
     for e in entries:
         with np.load(out / e["file"]) as d:
             n = len(d["t_s"])
-            assert n == e["samples"] > 60 and d["contour_px"].shape == (n, 16, 2)
+            assert n == e["samples"] > 60 and d["contour_px"].shape == d["hull_px"].shape == (n, 16, 2)
             assert d["position_counts"].shape == d["torque_nm"].shape == (n, 3)
-            assert np.isfinite(d["contour_mm"]).all()
+            assert np.isfinite(d["contour_mm"]).all() and np.isfinite(d["hull_mm"]).all()
+            assert "surface_mm" not in d.files  # only with surface=True
             assert json.loads(str(d["trajectory"]))["index"] == e["index"]
     assert not list(out.glob("*.tmp*"))
 
@@ -68,7 +69,15 @@ def test_ray_produces_the_local_dataset(local_dataset, tmp_path):
     entries = sweep(trajectories, tmp_path / "ray", workers=2, executor="ray")
     for e in entries:
         with np.load(out / e["file"]) as a, np.load(tmp_path / "ray" / e["file"]) as b:
-            for key in ("t_s", "position_counts", "torque_nm", "contour_px", "contour_mm"):
+            for key in (
+                "t_s",
+                "position_counts",
+                "torque_nm",
+                "contour_px",
+                "contour_mm",
+                "hull_px",
+                "hull_mm",
+            ):
                 assert np.array_equal(a[key], b[key]), key
 
 
@@ -118,9 +127,52 @@ def test_a_recorded_camera_run_becomes_a_dataset_trajectory(tmp_path, capsys):
         # contours of the grasped sphere: in the image, and over the palm in the hand frame
         assert ((d["contour_px"] > 0) & (d["contour_px"] < 320)).all()
         assert np.isfinite(d["contour_mm"]).all() and (np.abs(d["contour_mm"]) < 60).all()
+        # the recorded fused cloud, as heights on a grid laid on the first frame's cloud
+        assert d["surface_mm"].shape == (n, 100) and np.isfinite(d["surface_mm"]).any()
+        assert "surface_truth_mm" not in d.files
         # one sample per recorded frame of the compression (the sphere is never lost)
         stereo = Run(run).stream("stereo")
         assert entry["lost_frames"] == 0 and n <= len(stereo) and np.isin(d["t_s"], stereo.t_s).all()
     capsys.readouterr()
     assert main(["sweep", "--from-runs", str(tmp_path / "nothing"), "--out", str(tmp_path / "ds")]) == 2
     assert "not a run directory" in capsys.readouterr().err
+
+
+def test_a_surface_sweep_keeps_heights_near_the_true_surface_and_trains_the_3d_variant(
+    local_dataset, tmp_path, capsys
+):
+    out = tmp_path / "surface"
+    trajectories = draw_trajectories(["block"], 2, seed=1, duration_s=DURATION_S, points=16, surface=True)
+    entries = sweep(trajectories, out, workers=2)
+    for e in entries:
+        assert e["surface"] is True
+        with np.load(out / e["file"]) as d:
+            n = len(d["t_s"])
+            heights, truth = d["surface_mm"], d["surface_truth_mm"]
+            assert heights.shape == truth.shape == (n, 100)
+            both = np.isfinite(heights) & np.isfinite(truth)
+            assert both.sum() > 5 * n  # the block's top, where the fingers leave it in view
+            assert np.median(np.abs(heights - truth)[both]) < 1.0  # mm
+            assert json.loads(str(d["surface_grid"]))["cells"] == 10
+    capsys.readouterr()
+    argv = [
+        "train",
+        str(out),
+        "--object",
+        "block",
+        "--target",
+        "surface",
+        "--epochs",
+        "50",
+        "--validation",
+        "0.5",
+    ]
+    assert main(argv) == 0
+    report = json.loads((out / "models" / "block-surface" / "evaluation.json").read_text())
+    assert [r["predictor"].split()[0] for r in report["held_out"]] == ["network", "linear", "nearest"]
+    assert all(r["error_mm"] > 0 for r in report["held_out"])
+    # a dataset swept without --surface: one line naming the missing column
+    contours, _, _ = local_dataset
+    assert main(["train", str(contours), "--object", "sphere", "--target", "surface"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no 'surface_mm' column" in err

@@ -1,5 +1,9 @@
 """A sweep dataset (experiments/sweep.py) as arrays: inputs (p1, p2, p3 counts; T1, T2, T3 N*m) and
-contour targets, grouped by trajectory so that validation holds out whole trajectories."""
+one target, grouped by trajectory so that validation holds out whole trajectories.
+
+Targets (`TARGETS`): "largest", the outline of the largest visible piece of the object (the paper's
+contour); "hull", the convex hull of all visible pieces (twin.vision.contour says why); "surface", the
+fused 3-D surface as heights on the trajectory's hand-frame grid (twin.shape.surface)."""
 
 from __future__ import annotations
 
@@ -7,13 +11,17 @@ import json
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
+from twin.shape.surface import SurfaceGrid
 
 INPUTS = ("p1_counts", "p2_counts", "p3_counts", "T1_nm", "T2_nm", "T3_nm")
+CONTOUR_TARGETS = {"largest": ("contour_px", "contour_mm"), "hull": ("hull_px", "hull_mm")}
+TARGETS = (*CONTOUR_TARGETS, "surface")
 
 
 @dataclass(frozen=True)
@@ -35,9 +43,62 @@ class ShapeData:
         )
 
 
-def load_dataset(directory: Path | str, object_name: str) -> ShapeData:
-    """Every trajectory of `object_name` in a sweep directory; ConfigError names what is wrong."""
-    directory = Path(directory)
+@dataclass(frozen=True)
+class SurfaceData:
+    """Samples of one object: inputs (n, 6), measured and true heights (n, cells^2) in mm (NaN where
+    unobserved), trajectory id per sample; and each trajectory's grid (cell centres, mm)."""
+
+    inputs: NDArray[np.float64]
+    heights_mm: NDArray[np.float64]
+    truth_mm: NDArray[np.float64]
+    trajectory: NDArray[np.int64]
+    grids: dict[int, SurfaceGrid]
+
+    def __len__(self) -> int:
+        return len(self.inputs)
+
+    def subset(self, mask: NDArray[np.bool_]) -> SurfaceData:
+        """The samples where mask is True."""
+        return SurfaceData(
+            self.inputs[mask], self.heights_mm[mask], self.truth_mm[mask], self.trajectory[mask], self.grids
+        )
+
+
+def load_dataset(directory: Path | str, object_name: str, target: str = "largest") -> ShapeData:
+    """Every trajectory of `object_name` in a sweep directory, with the contour `target` ("largest" or
+    "hull"); ConfigError names what is wrong."""
+    if target not in CONTOUR_TARGETS:
+        raise ConfigError(f"unknown contour target '{target}' (choose from {', '.join(CONTOUR_TARGETS)})")
+    px_key, mm_key = CONTOUR_TARGETS[target]
+    parts = [
+        (x, d[px_key], d[mm_key], k)
+        for x, d, k in _trajectories(Path(directory), object_name, (px_key, mm_key))
+    ]
+    x, px, mm, traj = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return ShapeData(x, px, mm, traj.astype(np.int64))
+
+
+def load_surface_dataset(directory: Path | str, object_name: str) -> SurfaceData:
+    """Every trajectory of `object_name` swept with `--surface` (heights on its grid); true heights are
+    NaN for recorded runs. ConfigError names what is wrong."""
+    parts, grids = [], {}
+    for x, d, k in _trajectories(Path(directory), object_name, ("surface_mm",)):
+        truth = d["surface_truth_mm"] if "surface_truth_mm" in d else np.full_like(d["surface_mm"], np.nan)
+        parts.append((x, d["surface_mm"], truth, k))
+        grids[int(k[0])] = SurfaceGrid(
+            **{**d["surface_grid"], "centre_mm": tuple(d["surface_grid"]["centre_mm"])}
+        )
+    cells = {p[1].shape[1] for p in parts}
+    if len(cells) > 1:
+        raise ConfigError(f"{directory}: trajectories of '{object_name}' use different surface grids {cells}")
+    x, h, t, traj = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return SurfaceData(x, h, t, traj.astype(np.int64), grids)
+
+
+def _trajectories(
+    directory: Path, object_name: str, needed: tuple[str, ...]
+) -> list[tuple[NDArray[np.float64], dict, NDArray[np.int64]]]:
+    """(inputs, arrays, trajectory ids) of every non-empty trajectory of the object holding `needed`."""
     index_path = directory / "index.json"
     if not index_path.is_file():
         raise ConfigError(f"{directory}: not a sweep dataset (no index.json); make one with `twin sweep`")
@@ -48,25 +109,35 @@ def load_dataset(directory: Path | str, object_name: str) -> ShapeData:
         raise ConfigError(f"{directory}: no trajectories of '{object_name}'")
     parts = []
     for e in entries:
+        path = directory / e["file"]
         try:
-            with np.load(directory / e["file"]) as d:
+            with np.load(path) as d:
+                missing = [k for k in needed if k not in d.files]
+                if missing:
+                    raise ConfigError(
+                        f"{path}: no '{missing[0]}' column (swept by an older version, or without "
+                        "--surface); sweep it again"
+                    )
                 if len(d["t_s"]) == 0:
                     continue
+                arrays = {k: d[k] for k in d.files if k != "trajectory"}
+                if "surface_grid" in arrays:
+                    arrays["surface_grid"] = json.loads(str(arrays["surface_grid"]))
                 x = np.column_stack([d["position_counts"], d["torque_nm"]])
-                parts.append((x, d["contour_px"], d["contour_mm"], np.full(len(x), e["index"])))
+                parts.append((x, arrays, np.full(len(x), e["index"])))
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
-            raise ConfigError(
-                f"{directory / e['file']}: not a readable trajectory ({exc}); rerun the sweep"
-            ) from None
+            if isinstance(exc, ConfigError):
+                raise
+            raise ConfigError(f"{path}: not a readable trajectory ({exc}); rerun the sweep") from None
     if not parts:
         raise ConfigError(f"{directory}: the trajectories of '{object_name}' hold no samples")
-    x, px, mm, traj = (np.concatenate(p) for p in zip(*parts, strict=True))
-    return ShapeData(x, px, mm, traj.astype(np.int64))
+    return parts
 
 
-def split_by_trajectory(
-    data: ShapeData, validation_fraction: float, seed: int
-) -> tuple[ShapeData, ShapeData]:
+Samples = TypeVar("Samples", ShapeData, SurfaceData)
+
+
+def split_by_trajectory(data: Samples, validation_fraction: float, seed: int) -> tuple[Samples, Samples]:
     """Whole trajectories held out for validation (at least one), chosen by seed."""
     ids = np.unique(data.trajectory)
     if len(ids) < 2:

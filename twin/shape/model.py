@@ -1,5 +1,7 @@
 """The paper's network (§7): 6 inputs -> 30 hidden (tanh) -> 2n outputs, with the inputs and outputs
-standardized by the training set's statistics, saved with them and with its metadata."""
+standardized by the training set's statistics, saved with them and with its metadata.
+
+The 3-D variant is the same network with one output per point (a height on its grid): `dims` = 1."""
 
 from __future__ import annotations
 
@@ -17,13 +19,14 @@ META_FILE = "model.json"
 
 
 class ShapeMLP(torch.nn.Module):
-    """6 -> 30 (tanh) -> 2n."""
+    """6 -> 30 (tanh) -> dims * n: 2n for a contour (u, v per point), n for heights."""
 
-    def __init__(self, points: int, hidden: int = HIDDEN) -> None:
+    def __init__(self, points: int, hidden: int = HIDDEN, dims: int = 2) -> None:
         super().__init__()
         self.points = points
+        self.dims = dims
         self.net = torch.nn.Sequential(
-            torch.nn.Linear(6, hidden), torch.nn.Tanh(), torch.nn.Linear(hidden, 2 * points)
+            torch.nn.Linear(6, hidden), torch.nn.Tanh(), torch.nn.Linear(hidden, dims * points)
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -33,7 +36,8 @@ class ShapeMLP(torch.nn.Module):
 
 @dataclass
 class ShapeModel:
-    """A trained network with its normalization; predicts contours (n, 2) in px from raw readings."""
+    """A trained network with its normalization; predicts contours (n, 2) in px (or, with dims = 1,
+    heights (n,) in mm) from raw readings. `metadata["target"]` says which: largest, hull, surface."""
 
     net: ShapeMLP
     x_mean: NDArray[np.float64]
@@ -57,11 +61,20 @@ class ShapeModel:
         """Contour points per prediction."""
         return self.net.points
 
+    @property
+    def target(self) -> str:
+        """What it predicts: "largest" or "hull" (contours), or "surface" (heights)."""
+        return str(self.metadata.get("target", "largest"))
+
+    def _shape(self, batch: tuple[int, ...]) -> tuple[int, ...]:
+        return (*batch, self.points) if self.net.dims == 1 else (*batch, self.points, self.net.dims)
+
     def predict(self, inputs: NDArray[np.float64]) -> NDArray[np.float64]:
-        """(6,) or (b, 6) raw inputs (counts, N*m) -> (n, 2) or (b, n, 2) contour pixels."""
+        """(6,) or (b, 6) raw inputs (counts, N*m) -> (n, 2) or (b, n, 2) contour pixels ((n,) or (b, n)
+        heights in mm for a surface model)."""
         x = np.asarray(inputs, dtype=np.float64)
         y = np.tanh(x @ self._w1.T + self._b1) @ self._w2.T + self._b2
-        return y.reshape(*x.shape[:-1], self.points, 2)
+        return y.reshape(self._shape(x.shape[:-1]))
 
     def predict_torch(self, inputs: NDArray[np.float64]) -> NDArray[np.float64]:
         """The same through torch (what training optimized; `predict` must agree with it)."""
@@ -69,7 +82,7 @@ class ShapeModel:
         with torch.no_grad():
             y = self.net(torch.as_tensor(x, dtype=torch.float32)).numpy().astype(np.float64)
         y = y * self.y_std + self.y_mean
-        return y.reshape(len(y), self.points, 2)
+        return y.reshape(self._shape((len(y),)))
 
     def save(self, directory: Path | str) -> Path:
         """model.pt (weights) and model.json (normalization, metadata) in directory."""
@@ -79,6 +92,7 @@ class ShapeModel:
         meta = {
             "points": self.points,
             "hidden": HIDDEN,
+            "dims": self.net.dims,
             "x_mean": self.x_mean.tolist(),
             "x_std": self.x_std.tolist(),
             "y_mean": self.y_mean.tolist(),
@@ -94,7 +108,7 @@ class ShapeModel:
         directory = Path(directory)
         try:
             meta = json.loads((directory / META_FILE).read_text())
-            net = ShapeMLP(int(meta["points"]), int(meta.get("hidden", HIDDEN)))
+            net = ShapeMLP(int(meta["points"]), int(meta.get("hidden", HIDDEN)), int(meta.pop("dims", 2)))
             net.load_state_dict(torch.load(directory / WEIGHTS_FILE, weights_only=True))
         except (OSError, ValueError, KeyError, RuntimeError) as exc:
             raise ValueError(

@@ -55,7 +55,19 @@ def test_a_run_predicts_every_hand_sample_and_records_the_measured_contour(model
 
 
 def test_a_model_that_is_not_one_or_for_another_object_is_refused_before_the_run(model_dir, tmp_path, capsys):
-    for model, message in ((tmp_path, "not a trained shape model"), (model_dir, "trained on 'sphere'")):
+    surface = ShapeModel(
+        net=ShapeMLP(16, dims=1),
+        x_mean=np.zeros(6),
+        x_std=np.ones(6),
+        y_mean=np.zeros(16),
+        y_std=np.ones(16),
+        metadata={"object": "block", "target": "surface"},
+    ).save(tmp_path / "surface")
+    for model, message in (
+        (tmp_path, "not a trained shape model"),
+        (model_dir, "trained on 'sphere'"),
+        (surface, "a surface model"),
+    ):
         out = tmp_path / "never"
         argv = ["run", "compress", "--object", "block", "--predict", str(model), "--out", str(out)]
         assert main(argv) == 2

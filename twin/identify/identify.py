@@ -8,7 +8,8 @@ Steps (paper §3.1 and §6.2):
 3. over whole compression cycles: the reaction model R(delta, delta_dot) fitted to the tactile R,
    the same R recovered from the strain gauges through eq. 4 (tau - hand terms over the measured
    moment arm) as a cross-check, and the secant stiffness mean R / mean delta;
-4. the thumb's secant and tangent stiffnesses through the material mapping: E with a 95 % interval.
+4. the grip stiffness (summed gauge torques on summed drive counts) and the thumb's secant and tangent
+   stiffnesses through the material mapping: E with a 95 % interval.
 """
 
 from __future__ import annotations

@@ -2,22 +2,26 @@
 
 The stiffness a finger feels is not a material constant: it depends on the object's shape and size
 and on where the grasp settles. So the mapping is empirical, built from twin runs of the same
-procedure over a grid of moduli and sizes per shape, with two noise seeds per point
+procedure over a grid of moduli and sizes per shape, with two or more noise seeds per point
 (experiments/build_material_map.py), and stored with the package (material_map.json).
 
-Its features are the thumb's (F3): the thumb alone opposes F1 and F2, so its contact neither rocks
-nor shares load (F1 and F2 trade force at 15 Hz on a held object).
-- secant stiffness, mean R / mean delta over whole cycles: steep in E on soft foams, but on stiff ones
-  it rides on where first contact is placed, which varies run to run;
-- tangent stiffness, the Kelvin-Voigt k over the 2 mm cycles: erratic on soft foams (the clutch may
-  not have broken away), steady to ~1 % on stiff ones.
+Its features:
+- the grip stiffness, summed distal torques (gauges) against summed drive counts over the cycles: the
+  hand's own sensors, steady whichever link or pad carries the load, the steadiest of the three;
+- the thumb's (F3) secant stiffness, mean R / mean delta over whole cycles: steep in E on soft foams,
+  but on stiff ones it rides on where first contact is placed, which varies run to run;
+- the thumb's tangent stiffness, the Kelvin-Voigt k over the 2 mm cycles: erratic on soft foams (the
+  clutch may not have broken away), steady to ~1 % on stiff ones.
+The thumb's because the thumb alone opposes F1 and F2: its contact neither rocks nor shares load.
 
 Per shape, size and feature: ln E against ln k, piecewise linear (so monotone) through the grid points
 over which k rises with E; between sizes, linear in size. (On a grid 18 % apart in E, a cubic (PCHIP)
 interpolant changed no estimate by more than its interval, and costs `twin identify` a 0.3 s import.)
 Each feature's variance in ln E is the curve's leave-one-out error plus its run-to-run spread (seeds)
 and the fit's own uncertainty, both carried through the curve's slope; features are combined by
-inverse variance, the interval widened by the Birge ratio when they disagree.
+inverse variance, the interval widened by the Birge ratio when they disagree. A feature whose stiffness
+lies on a folded stretch of its curve (reached also outside the valid range) is ambiguous, and joins
+only when the unambiguous features agree with its valid branch.
 """
 
 from __future__ import annotations

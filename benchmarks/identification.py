@@ -13,7 +13,6 @@ without simulating again).
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -24,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.build_material_map import DURATION_S, YOUNG_RANGE_PA
+from experiments.build_material_map import DURATION_S, YOUNG_RANGE_PA, run_complete
 
 RANGE_PA = (1e4, 3e5)
 GRID_POINTS = (16, 24)
@@ -61,7 +60,7 @@ def make_run(args: tuple[float, float, int, float, str]) -> dict:
 
     foam = get_object("sphere").with_overrides(young_pa=young_pa, size_m=(size_mm / 1e3,) * 3)
     run_dir = Path(out_dir) / f"sphere-{size_mm:g}mm-{young_pa:.0f}Pa-s{seed}-{duration_s:g}s"
-    if not _complete(run_dir):
+    if not run_complete(run_dir):
         if run_dir.exists():
             import shutil
 
@@ -78,13 +77,6 @@ def make_run(args: tuple[float, float, int, float, str]) -> dict:
         "ci95_pa": m.get("ci95_pa", [float("nan")] * 2),
         "extrapolated": m.get("extrapolated", True),
     }
-
-
-def _complete(run_dir: Path) -> bool:
-    try:
-        return json.loads((run_dir / "run.json").read_text())["status"] == "complete"
-    except (OSError, ValueError, KeyError):
-        return False
 
 
 def run(quick: bool = False) -> dict:

@@ -46,7 +46,7 @@ def sweep_run(
     base = next(p for p in LIBRARY.values() if p.shape == shape)
     foam = base.with_overrides(young_pa=young_pa, size_m=(size_m,) * 3)
     run_dir = Path(out_dir) / f"{shape}-{size_m * 1e3:.0f}mm-{young_pa:.0f}Pa-s{seed}"
-    if not _complete(run_dir):  # resumable: a finished run is identified again, not re-run
+    if not run_complete(run_dir):  # resumable: a finished run is identified again, not re-run
         if run_dir.exists():
             import shutil
 
@@ -63,7 +63,8 @@ def _log_mean(values: list[float]) -> float:
     return float(np.exp(np.mean(np.log(v)))) if (v > 0).all() else 0.0
 
 
-def _complete(run_dir: Path) -> bool:
+def run_complete(run_dir: Path) -> bool:
+    """Whether a run directory holds a run that finished (kept runs are reused, not re-simulated)."""
     import json
 
     try:

@@ -119,7 +119,6 @@ def train(
     net = ShapeMLP(points)
     opt = torch.optim.Adam(net.parameters(), lr=LEARNING_RATE)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs)
-    val = float("nan")
     for epoch in range(epochs):
         opt.zero_grad()
         loss = torch.mean((net(xt) - yt) ** 2)

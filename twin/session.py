@@ -161,9 +161,14 @@ def run_experiment(
                 if rig is not None and rig.surface_scores:
                     writer.update_metadata(stereo_truth=summarize_surface_scores(rig.surface_scores))
                 recording.close()
-        return RunOutcome(run_dir, rrd_path, result, "complete")
-    finally:
-        backend.disconnect()
+    except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
+        try:
+            backend.disconnect()
+        except Exception as cleanup:
+            exc.add_note(f"(then disconnecting the devices failed too: {cleanup})")
+        raise
+    backend.disconnect()
+    return RunOutcome(run_dir, rrd_path, result, "complete")
 
 
 def _stereo_pipeline(

@@ -37,6 +37,14 @@ from hardware.bh262.protocol import (
 )
 from twin.interface.errors import ConfigError, DeviceError
 
+try:
+    import termios
+
+    TTY_ERRORS: tuple[type[Exception], ...] = (termios.error,)
+    """What a vanished pty raises from tcflush (not an OSError)."""
+except ImportError:  # not POSIX
+    TTY_ERRORS = ()
+
 SUPPORTED_BAUD = (600, 1200, 2400, 4800, 9600, 19200, 38400)
 MOTOR_PREFIXES = ("", "1", "2", "3", "4", "S", "G", "GS", "12", "13", "23", "123", "1234")
 
@@ -168,7 +176,7 @@ class BH262:
     def _flush_input(self) -> None:
         try:
             self._require().reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *TTY_ERRORS) as exc:
             raise PortLostError(f"the hand's port {self.settings.url} failed: {exc}") from None
 
     # --- Supervisory ----------------------------------------------------------------------

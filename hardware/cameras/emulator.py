@@ -9,23 +9,32 @@ probes ~1.4 s of it on open and those frames stay queued (1.3 s of latency) unle
 OPENCV_FFMPEG_CAPTURE_OPTIONS lowers probesize, and OpenCV still reports its timestamps relative to
 each connection's first frame, so they could not pair the two streams anyway.
 
-A hardware-triggered pair without timestamps: every frame period (`rate_hz`) the render thread copies
-the twin's state under the twin's lock (mj_copyData, well under a millisecond), renders both views
-from that copy outside the lock (twin.sim.cameras.SimStereo: native 640x480 area-averaged to 320x240,
-the declared sensor noise) and JPEG-encodes them. The two streams of a host are kept in step by the
+A hardware-triggered pair without timestamps: every frame period (`rate_hz`) the trigger thread copies
+the twin's pose state under the twin's lock (mj_getState: time, qpos, mocap; microseconds) and hands
+it to the render process, which rebuilds the geometry from it (kinematics, cameras, flex vertices),
+renders both views (twin.sim.cameras.SimStereo: native 640x480 area-averaged to 320x240, the declared
+sensor noise) and sends them back to be JPEG-encoded.
+
+The renderer is a process of its own, at a lower scheduling priority (`RENDER_NICE`), as the real
+cameras are devices of their own: rendering costs ~30 ms of CPU per pair (about a core at 30 fps on
+llvmpipe), and on a busy machine the emulated hand must still answer every RealTime cycle within its
+deadline. There the cameras drop frames (the next trigger waits for the render in flight) and the
+hand does not. The two streams of a host are kept in step by the
 server: a connection on one side opened within `PAIR_WINDOW_S` of one on the other side joins its
 pair and starts at the same frame, and when a host reads slower than the rate both streams of the
 pair skip the same frames (the first side to move on picks the newest frame, the other follows), so
 grabbing left then right always returns the two views of one state, and never a stale one queued
 behind newer frames for more than about a period.
 
-Rendering needs its own GL context: the emulator's SimStereo is created, connected and used on the
-render thread only (an EGL context cannot be current on two threads), on a copy of the twin's MjData.
+The render process has its own GL context and its own MjData; it is started with `spawn` (never
+forked from a process with running threads and GL state).
 """
 
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
+import os
 import socket
 import threading
 import time
@@ -57,6 +66,17 @@ HISTORY = 32
 SEND_BUFFER = 16_384
 """SO_SNDBUF of a stream (the kernel doubles it): fixed, so a slow host's queue stays a few frames deep."""
 STEREO_CALIBRATION_FILE = "stereo_calibration.json"
+RENDER_NICE = 10
+"""Niceness added to the render process: on a busy machine the cameras yield the CPU to the hand."""
+RENDER_START_TIMEOUT_S = 60.0
+"""How long the render process may take to start (imports, model, GL context) and render its first pair."""
+POSE_STATE = (
+    mujoco.mjtState.mjSTATE_TIME
+    | mujoco.mjtState.mjSTATE_QPOS
+    | mujoco.mjtState.mjSTATE_MOCAP_POS
+    | mujoco.mjtState.mjSTATE_MOCAP_QUAT
+)
+"""What a render needs of the twin's state: everything drawn follows from these by kinematics."""
 
 
 @dataclass
@@ -82,7 +102,7 @@ class _Pair:
 
 
 class _Snapshot:
-    """The world-like object SimStereo renders from: the model and a private copy of the twin's data."""
+    """The world-like object SimStereo renders from: the model and a private MjData posed from a state."""
 
     def __init__(self, model: mujoco.MjModel) -> None:
         self.model = model
@@ -91,6 +111,41 @@ class _Snapshot:
     @property
     def time_s(self) -> float:
         return float(self.data.time)
+
+    def pose(self, state: NDArray[np.float64]) -> None:
+        """Set the POSE_STATE and compute what rendering draws: bodies, cameras, lights, flex vertices."""
+        mujoco.mj_setState(self.model, self.data, state, POSE_STATE)
+        for stage in (mujoco.mj_kinematics, mujoco.mj_comPos, mujoco.mj_camlight, mujoco.mj_flex):
+            stage(self.model, self.data)
+
+
+def _render_process(model: mujoco.MjModel, config: Any, seed: int, conn: Any) -> None:
+    """The render process: pose, render and noise one pair per state received, until None or EOF.
+
+    Replies ("ready",) once, then ("pair", t_s, left, right, render_s) per state, or ("error", text)."""
+    from twin.sim.cameras import SimStereo
+
+    with contextlib.suppress(OSError):
+        os.nice(RENDER_NICE)
+    stereo = None
+    try:
+        snapshot = _Snapshot(model)
+        stereo = SimStereo(snapshot, config, np.random.default_rng([seed, 3]))  # type: ignore[arg-type]
+        stereo.connect()
+        conn.send(("ready",))
+        while (state := conn.recv()) is not None:
+            t0 = time.perf_counter()
+            snapshot.pose(state)
+            frame = stereo.read()
+            conn.send(("pair", frame.t_s, frame.left, frame.right, time.perf_counter() - t0))
+    except (EOFError, BrokenPipeError, KeyboardInterrupt):
+        pass  # the emulator went away or is stopping
+    except BaseException as exc:  # report it: the emulator ends the streams with this message
+        with contextlib.suppress(OSError):
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        if stereo is not None and stereo.is_connected:
+            stereo.disconnect()
 
 
 class CameraEmulator:
@@ -131,7 +186,8 @@ class CameraEmulator:
         self.render_s: list[float] = []
         self.encode_s: list[float] = []
         self.lock_s: list[float] = []
-        """Per pair: render of both views, JPEG encode of both, time the twin's lock was held (last 300)."""
+        """Per pair: pose and render of both views (render process), JPEG encode of both, time the twin's
+        lock was held (last 300)."""
         self._cond = threading.Condition()
         self._history: dict[int, EncodedPair] = {}
         self._latest: EncodedPair | None = None
@@ -151,12 +207,12 @@ class CameraEmulator:
         server = _Server((host, port), _Handler)
         server.emulator = self
         self._server = server
-        render = threading.Thread(target=self._render_loop, name="camera-render", daemon=True)
+        render = threading.Thread(target=self._render_loop, name="camera-trigger", daemon=True)
         serve = threading.Thread(target=server.serve_forever, args=(0.1,), name="camera-http", daemon=True)
         self._threads = [render, serve]
         render.start()
         serve.start()
-        if not self._ready.wait(timeout=30.0) or self.error is not None:
+        if not self._ready.wait(timeout=RENDER_START_TIMEOUT_S + 5.0) or self.error is not None:
             self.close()
             raise RuntimeError(f"the camera emulator could not render: {self.error}")
         bound = server.server_address[1]
@@ -193,26 +249,33 @@ class CameraEmulator:
     # --- rendering --------------------------------------------------------------------------
 
     def _render_loop(self) -> None:
-        from twin.sim.cameras import SimStereo
-
+        """The trigger: every period, the twin's pose to the render process and its pair to the streams."""
+        world = self.twin.backend.world
+        config = self.config if self.noise else _without_noise(self.config)
+        context = multiprocessing.get_context("spawn")
+        conn, child_conn = context.Pipe()
+        args = (world.model, config, self.seed, child_conn)
+        process = context.Process(target=_render_process, args=args, name="camera-render", daemon=True)
+        state = np.empty(mujoco.mj_stateSize(world.model, POSE_STATE))
         try:
-            world = self.twin.backend.world
-            snapshot = _Snapshot(world.model)
-            config = self.config if self.noise else _without_noise(self.config)
-            stereo = SimStereo(snapshot, config, np.random.default_rng([self.seed, 3]))  # type: ignore[arg-type]
-            stereo.connect()  # this thread's GL context
-        except BaseException as exc:
-            self.error = exc
-            self._ready.set()
-            return
-        period = 1.0 / self.rate_hz
-        next_t = time.monotonic()
-        try:
+            process.start()
+            child_conn.close()
+            self._receive(conn, process, RENDER_START_TIMEOUT_S)  # ("ready",)
+            period = 1.0 / self.rate_hz
+            next_t = time.monotonic()
             while not self.stop_event.is_set():
-                self._publish(self._render_pair(world, snapshot, stereo))
+                t0 = time.perf_counter()
+                with self.twin.lock:  # only the pose: the render process draws it, the twin steps on
+                    mujoco.mj_getState(world.model, world.data, state, POSE_STATE)
+                self.lock_s.append(time.perf_counter() - t0)
+                conn.send(state)
+                reply = self._receive(conn, process, RENDER_START_TIMEOUT_S)
+                if reply is None:
+                    break
+                self._publish(self._encode_pair(*reply[1:]))
                 self._ready.set()
                 next_t += period
-                if next_t < time.monotonic() - period:  # fell behind (a busy host): no burst
+                if next_t < time.monotonic() - period:  # fell behind (a busy host): drop, no burst
                     next_t = time.monotonic()
                 if self.stop_event.wait(max(0.0, next_t - time.monotonic())):
                     break
@@ -224,21 +287,41 @@ class CameraEmulator:
                 self._cond.notify_all()
         finally:
             self._ready.set()
-            stereo.disconnect()
+            with contextlib.suppress(OSError):
+                conn.send(None)
+            process.join(timeout=5.0)
+            if process.is_alive():
+                process.terminate()
+                process.join(timeout=2.0)
+            conn.close()
 
-    def _render_pair(self, world: Any, snapshot: _Snapshot, stereo: Any) -> EncodedPair:
+    def _receive(self, conn: Any, process: Any, timeout_s: float) -> tuple | None:
+        """The render process's next reply; None once the emulator is stopping. Raises if it failed,
+        died or said nothing for `timeout_s`."""
+        deadline = time.monotonic() + timeout_s
+        while not conn.poll(0.1):
+            if self.stop_event.is_set():
+                return None
+            if not process.is_alive():
+                raise RuntimeError(f"the render process exited (code {process.exitcode})")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the render process gave no frame for {timeout_s:.0f} s")
+        reply = conn.recv()
+        if reply[0] == "error":
+            raise RuntimeError(reply[1])
+        return reply
+
+    def _encode_pair(
+        self, t_s: float, left: NDArray[np.uint8], right: NDArray[np.uint8], render_s: float
+    ) -> EncodedPair:
         t0 = time.perf_counter()
-        with self.twin.lock:  # only the copy: rendering reads the copy, the twin steps on
-            mujoco.mj_copyData(snapshot.data, world.model, world.data)
-        t1 = time.perf_counter()
-        frame = stereo.read()
-        t2 = time.perf_counter()
+        frame = StereoFrame(t_s=t_s, left=left, right=right)
         jpeg = {side: self.encode(getattr(frame, side)) for side in SIDES}
-        t3 = time.perf_counter()
-        for store, value in ((self.lock_s, t1 - t0), (self.render_s, t2 - t1), (self.encode_s, t3 - t2)):
-            store.append(value)
+        self.render_s.append(render_s)
+        self.encode_s.append(time.perf_counter() - t0)
+        for store in (self.lock_s, self.render_s, self.encode_s):
             del store[:-300]
-        return EncodedPair(self.frames + 1, frame.t_s, time.monotonic(), jpeg, frame)
+        return EncodedPair(self.frames + 1, t_s, time.monotonic(), jpeg, frame)
 
     def encode(self, rgb: NDArray[np.uint8]) -> bytes:
         """One view as JPEG at the emulator's quality."""

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hardware.bh262.driver import BH262, HandTimeoutError, PortSettings
+from hardware.bh262.driver import BH262, HandTimeoutError, PortLostError, PortSettings
 from hardware.bh262.emulator import make_hand_emulator
 from hardware.bh262.hand import DEFAULT_REALTIME
 from hardware.bh262.protocol import ErrorFlag, HandCommandError, ProtocolError
@@ -235,3 +235,18 @@ def test_a_hand_left_at_the_fast_rate_is_found_there():
         bh.open()
         assert bh.baud == 38400 and bh.pget("BAUD") == 384
         bh.close()
+
+
+def test_a_vanished_pty_is_a_port_lost_error_not_a_termios_error():
+    """Once the far end of a pty closes, tcflush fails with termios.error (not an OSError): the driver
+    reports the lost port like every other I/O failure, so a run's cleanup ends in one clear line."""
+    emulator = make_hand_emulator(None)
+    bh = BH262(PortSettings(url=emulator.serve_pty(), baud=9600))
+    bh.open()
+    try:
+        emulator.close()  # the pty's master side goes away
+        with pytest.raises(PortLostError, match="hand's port /dev/pts/"):
+            bh.resync(0.1)
+    finally:
+        bh.close()
+        emulator.close()

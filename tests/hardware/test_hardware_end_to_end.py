@@ -49,9 +49,12 @@ def _emulate_rig(tmp_path: Path, *extra: str):
             break
     assert any(line.startswith("hand: /dev/") for line in lines), lines
     assert any(line.startswith("tactile: /dev/") for line in lines), lines
-    yield rig_file
-    proc.send_signal(signal.SIGINT)
-    proc.wait(timeout=10)
+    try:
+        yield rig_file
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
 
 
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
@@ -190,3 +193,25 @@ def test_emulator_serves_tcp_and_exits_after_its_duration(tmp_path: Path):
     assert result.returncode == 0
     assert "hand: socket://127.0.0.1:" in result.stdout and "emulator stopped" in result.stdout
     assert time.monotonic() - t0 < 30
+
+
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
+def test_the_rig_going_away_mid_run_is_one_clear_error_and_the_run_is_kept(tmp_path: Path):
+    """`twin emulate rig --duration 6` stops under a 30 s run and every port vanishes at once: one
+    error line, no traceback, exit 2, and the samples before it are in a run marked failed."""
+    emulator = _emulate_rig(tmp_path, "--no-cameras", "--duration", "6")
+    rig_file = next(emulator)
+    try:
+        hw = twin(
+            "run", "compress", "--backend", "hardware", "--rig", str(rig_file), "--duration", "30",
+            "--out", "hw", "--no-progress", cwd=tmp_path,
+        )  # fmt: skip
+    finally:
+        emulator.close()
+    assert hw.returncode == 2, hw.stderr
+    assert "Traceback" not in hw.stderr
+    errors = [line for line in hw.stderr.splitlines() if line.startswith("twin: error:")]
+    assert len(errors) == 1, hw.stderr
+    run = open_run(tmp_path / "hw")
+    assert run.status == "failed" and not run.truncated
+    assert len(run.stream("hand")) > 30  # at least a second of samples before the rig went away

@@ -62,9 +62,16 @@ class Backend(ABC):
             raise
 
     def disconnect(self) -> None:
-        """Disconnect every device (idles the hand first)."""
+        """Disconnect every device (idles the hand first), each even if another fails; the first
+        failure is raised once all were tried."""
+        first: Exception | None = None
         for device in reversed(self.devices()):
-            device.disconnect()
+            try:
+                device.disconnect()
+            except Exception as exc:
+                first = first or exc
+        if first is not None:
+            raise first
 
     def devices(self) -> list[Any]:
         """The devices present, hand first."""

@@ -32,13 +32,14 @@ SIZES_MM = {70.0: 12, 65.0: 9, 67.5: 9}
 BETWEEN_SIZES_MM = {68.75: 4}
 SOFT_END_PA = (1.5e4, 2.2e4)
 SOFT_END_MM = {67.5: 4, 70.0: 4}
-"""Extra runs where the soft sphere's grasp changes regime (clutches that break away or not, a thumb
-pushing with its inner link): the thumb's pad stiffness alone put one run at +13 % there. They count
-in the acceptance figures (mapped sizes, moduli in range)."""
+"""Extra runs where the soft sphere's grasp used to change regime (clutches that break away or not, a
+thumb pushing with its inner link): runs there reached +13.8 % before the close touched at 12000
+counts/s and held where contact is confirmed. They count in the acceptance figures."""
 SOFT_END_65_PA = (1.1e4, 2.2e4)
 SOFT_END_65_MM = {65.0: 6}
-"""The 65 mm sphere's soft end, where fresh noise seeds at the mapping's own moduli read up to 49 %
-off (docs/identification.md). Drawn after the other tables, so their moduli and seeds stay as they were."""
+"""The 65 mm sphere's soft end, where with the earlier close fresh noise seeds at the mapping's own
+moduli read up to 49 % off (docs/identification.md). Drawn after the other tables, so their moduli
+and seeds stay as they were."""
 FIT_CASES = 8
 TIMING_RUN_S = 60.0
 

@@ -1,13 +1,14 @@
 """Build the material mapping (twin/identify/material_map.json) from compress runs of the twin.
 
 For each shape and size, runs `twin run compress` on a log grid of Young's moduli, identifies each
-run exactly as `twin identify` would, and fits ln E against the thumb's secant stiffness
-(twin.identify.material). To add a shape, or a size range for a new object:
+run exactly as `twin identify` would, and fits ln E against each mapping feature (the grip
+stiffness, the thumb's secant and tangent; twin.identify.material). To add a shape, or a size range
+for a new object:
 
     python -m experiments.build_material_map --shape block --sizes-mm 50 60 70 --workers 2
 
 (a new shape is added to the stored mapping beside the others; its sizes replace that shape's).
-Check the printed leave-one-out error before trusting it: the mapping is only as good as the
+Check the printed leave-one-out error before trusting it: the mapping is only as good as each
 feature is monotone in E for that shape (see BENCHMARKS.md, identification).
 """
 
@@ -28,9 +29,11 @@ YOUNG_RANGE_PA = (8e3, 3.6e5)
 DURATION_S = 14.0
 """Close and balance take ~3.5 s; the rest is 5 whole compression cycles at 0.5 Hz."""
 SOFT_BELOW_PA = 3e4
-"""Below this the soft sphere's grasp settles in one of two states (clutches broken away throughout the
-cycles, or breaking away and re-coupling in each), which shifts every stiffness by up to ~20 %; there
-the knots average more seeds (--soft-seeds), so each knot is the mean over both states."""
+"""Below this a soft object's grasp can settle in one of two clutch states (F1 and F2 broken away
+through the cycles, or breaking away and re-coupling in each), which shifts every stiffness by up to
+~20 %. Since the close holds where contact is confirmed, which state is mostly set by size and modulus;
+where the touch is close to breaking a clutch (the 67.5 mm sphere near 18-20 kPa) it is still noise.
+--soft-seeds averages more seeds there (docs/identification.md has what 6 did to the stored mapping)."""
 
 
 def sweep_run(

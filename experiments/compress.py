@@ -33,18 +33,31 @@ PHASES = ("close", "balance", "compress")
 class CompressProfile:
     """Constants of the procedure; every one is a documented choice, see the module docstring."""
 
-    close_velocity_counts_s: float = 6000.0
-    """Approach speed: ~0.86 rad/s of the inner link, full closing in under 3 s."""
+    close_velocity_counts_s: float = 12000.0
+    """Approach speed: ~1.7 rad/s of the inner link, full closing in under 1.5 s. Fast enough that the
+    touch breaks every clutch away on foams of 11-22 kPa too (at 6000 counts/s whether F1's and F2's
+    did was a threshold in size and modulus, and near it the noise decided; docs/identification.md)."""
     contact_torque_nm: float = 0.10
     """A finger stops closing when its distal torque (eq. 2) rises this far above its no-load value..."""
     contact_samples: int = 2
-    """...in this many consecutive readings: one reading over is an impact or noise spike, not a grasp
-    (it stops the finger where it first crossed)."""
+    """...in this many consecutive readings: one reading over is a noise spike, not a grasp. The finger
+    holds where the grasp is confirmed, not where the torque first crossed: stepping back to that
+    first crossing would re-open the finger by a sample of travel (~200 counts), which re-couples a
+    clutch the touch broke away (docs/identification.md) or not, depending on the gauge noise."""
     grasp_torque_nm: float = 0.20
     """Balanced grasp: every finger is servoed to this distal torque before compressing."""
     balance_s: float = 1.5
+    """Shortest balance. It goes on until every finger's torque is within `balance_tolerance_nm` of
+    the grasp torque, or `balance_timeout_s` has passed."""
+    balance_tolerance_nm: float = 0.02
+    """About four times the gauge noise (0.005 N*m): a balanced grasp, not one noisy reading."""
+    balance_timeout_s: float = 5.0
     balance_gain_counts_per_nm_s: float = 2000.0
     """Integral gain of the torque balance (counts per N*m of error per second)."""
+    reacquire_velocity_counts_s: float = 3000.0
+    """A finger whose load falls below half the contact torque during balance has lost the object
+    (the fast touch of F1 and F2 can knock a block off the thumb): it closes at this speed until it
+    feels the object again, instead of at the integral's crawl (0.2 N*m of error: 400 counts/s)."""
     offset_counts: float = 200.0
     amplitude_counts: float = 200.0
     """Eq. 7 offset and amplitude: 200 counts of drive ~ 2 mm at the fingertip after breakaway."""
@@ -56,13 +69,16 @@ class CompressProfile:
     """Spread 0: F1 and F2 side by side oppose the thumb F3, as in the paper's Fig. 3b."""
 
     def __post_init__(self) -> None:
-        for name in ("close_velocity_counts_s", "contact_torque_nm", "grasp_torque_nm"):
+        names = ("close_velocity_counts_s", "contact_torque_nm", "grasp_torque_nm", "balance_tolerance_nm")
+        for name in (*names, "reacquire_velocity_counts_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"compress: {name} must be > 0")
         if self.contact_samples < 1:
             raise ConfigError("compress: contact_samples must be >= 1")
         if self.amplitude_counts < 0 or self.frequency_hz <= 0 or self.balance_s < 0:
             raise ConfigError("compress: amplitude >= 0, frequency > 0 and balance_s >= 0 required")
+        if self.balance_timeout_s < self.balance_s:
+            raise ConfigError("compress: balance_timeout_s must be >= balance_s")
         if self.offset_counts + self.amplitude_counts > 4000:
             raise ConfigError("compress: offset + amplitude above 4000 counts would crush the object")
 
@@ -81,7 +97,6 @@ class CompressController:
     _hold_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _in_contact: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=bool))
     _over: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=int))
-    _first_over_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _t_phase: float = 0.0
     _t_last: float | None = None
     grasp_counts: np.ndarray | None = None
@@ -100,7 +115,7 @@ class CompressController:
         if self.phase == "close":
             target = self._close(reading.t_s, position, load)
         elif self.phase == "balance":
-            target = self._balance(reading.t_s, torque, dt)
+            target = self._balance(reading.t_s, torque, load, dt)
         else:
             target = self._compress(reading.t_s)
         return HandCommand(
@@ -111,10 +126,9 @@ class CompressController:
     def _close(self, t_s: float, position: np.ndarray, load: np.ndarray) -> np.ndarray:
         p = self.profile
         over = load > p.contact_torque_nm
-        self._first_over_counts = np.where(over & (self._over == 0), position, self._first_over_counts)
         self._over = np.where(over, self._over + 1, 0)
         touched = ~self._in_contact & (self._over >= p.contact_samples)
-        self._hold_counts[touched] = self._first_over_counts[touched]
+        self._hold_counts[touched] = position[touched]
         self._in_contact |= touched
         target = np.where(self._in_contact, self._hold_counts, float(units.FINGER_FULL_COUNTS))
         if self._in_contact.all() or t_s - self._t_phase > p.close_timeout_s:
@@ -122,12 +136,16 @@ class CompressController:
             self._enter("balance", t_s)
         return target
 
-    def _balance(self, t_s: float, torque: np.ndarray, dt: float) -> np.ndarray:
+    def _balance(self, t_s: float, torque: np.ndarray, load: np.ndarray, dt: float) -> np.ndarray:
         p = self.profile
         error = p.grasp_torque_nm - torque
         step = np.clip(p.balance_gain_counts_per_nm_s * error * dt, -100.0, 100.0)
+        lost = load < p.contact_torque_nm / 2
+        step = np.where(lost, p.reacquire_velocity_counts_s * dt, step)
         self._hold_counts = np.clip(self._hold_counts + step, 0, units.FINGER_MAX_COUNTS)
-        if t_s - self._t_phase >= p.balance_s:
+        elapsed = t_s - self._t_phase
+        settled = not lost.any() and bool(np.all(np.abs(error) <= p.balance_tolerance_nm))
+        if (elapsed >= p.balance_s and settled) or elapsed >= p.balance_timeout_s:
             self.grasp_counts = self._hold_counts.copy()
             self._enter("compress", t_s)
         return self._hold_counts

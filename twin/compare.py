@@ -111,7 +111,7 @@ def phase_changes_s(run: Path | str) -> list[float]:
 
 def contact_windows_s(run: Path | str, half_width_s: float = 0.25) -> tuple[tuple[float, float], ...]:
     """Windows around the end of closing (first contact): there one sample of timing jitter at the
-    approach speed (6000 counts/s x 33 ms = 200 counts) outweighs everything else."""
+    approach speed (12000 counts/s x 33 ms = 400 counts) outweighs everything else."""
     changes = phase_changes_s(run)
     return ((changes[0] - half_width_s, changes[0] + half_width_s),) if changes else ()
 

@@ -4,7 +4,7 @@ against the twin's truth over real compress runs."""
 import numpy as np
 import pytest
 
-from experiments.compress import CompressController
+from experiments.compress import CompressController, CompressProfile
 from twin import units
 from twin.kinematics import ClutchObserver, HandKinematics, link_angles
 from twin.rig import Rig
@@ -65,7 +65,12 @@ def test_taxels_match_the_twin_at_its_true_joint_angles(grasped_block):
 def test_clutch_observer_tracks_the_link_angles_through_breakaway(grasped_block):
     _, errors_deg = grasped_block
     assert len(errors_deg) > 60
-    assert errors_deg.max() < 2.0, errors_deg.max(axis=0)  # measured 1.43 deg (F3)
+    # The observer places a breakaway at the first reading over the load; the clutch may have slipped
+    # up to one reading earlier. One 33 ms reading of travel at the approach speed bounds the error:
+    # 3.3 deg at 12000 counts/s (measured 2.97 deg: F1 and F2 knock the block against F3).
+    sample_travel_counts = CompressProfile().close_velocity_counts_s / 30.0
+    bound_deg = np.degrees(units.finger_counts_to_inner_rad(sample_travel_counts))
+    assert errors_deg.max() < bound_deg, errors_deg.max(axis=0)
     coupled_only = ClutchObserver(load_nm=np.inf)  # never breaks away: the naive drive/3 model
     drive = units.finger_counts_to_inner_rad(np.full(3, 12_000))
     naive = coupled_only.update(np.append(np.full(3, 12_000), 0), np.full(3, 137))

@@ -283,5 +283,7 @@ def _material(
         out["twin_young_pa"] = obj["young_pa"]  # the twin knows its material: report the error
         out["error"] = estimate.young_pa / obj["young_pa"] - 1.0
     if estimate.extrapolated:
-        notes.append("no stiffness lies inside the mapping's valid range: the modulus is extrapolated")
+        notes.append(
+            "the modulus is extrapolated: no stiffness it rests on lies inside the mapping's valid range"
+        )
     return out

@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve, monotone_span
+from twin.identify.material import (
+    FEATURES,
+    FOLD_MARGIN_LOG,
+    MAP_FILE,
+    MappingError,
+    MaterialMap,
+    fit_curve,
+    monotone_span,
+)
 
 SECANT, TANGENT, GRIP = FEATURES
 
@@ -99,7 +107,7 @@ def test_a_folded_feature_is_used_only_where_the_clear_ones_pick_its_branch(tmp_
     k[:2] = k[6], k[5]  # the two softest foams read like the seventh and sixth
     folded = fit_curve(0.07, k, young, None, GRIP)
     assert folded.young_range_pa[0] == pytest.approx(young[2])
-    assert folded.folded_log_k == (pytest.approx((math.log(k[2]), math.log(k[6]))),)
+    assert folded.folded_log_k == (pytest.approx((math.log(k[2]), math.log(k[6]) + FOLD_MARGIN_LOG)),)
     clear = fit_curve(0.07, _law(SECANT, 0.07, young), young, np.full(12, 0.05), SECANT)
     mapping = MaterialMap(curves={"sphere": [clear, folded]}, provenance={})
 
@@ -120,6 +128,62 @@ def test_a_folded_feature_is_used_only_where_the_clear_ones_pick_its_branch(tmp_
     assert grip["ambiguous"] and not grip["used"] and est.young_pa == pytest.approx(soft, rel=0.01)
     again = MaterialMap.load(mapping.save(tmp_path / "map.json"))
     assert next(c for c in again.curves["sphere"] if c.feature == GRIP).folded_log_k == folded.folded_log_k
+
+
+def test_with_no_clear_feature_one_outside_its_range_picks_the_folded_ones_branch():
+    """The thumb below its valid range still says which side of the fold the foam is on: a grip that
+    is ambiguous there and disagrees is set aside, and the estimate says it is extrapolated (on the
+    twin's 67.5 mm sphere at 11 kPa the grip's valid branch alone read +81 %, unflagged)."""
+    young = np.geomspace(1e4, 3e5, 12)
+    k = _law(TANGENT, 0.07, young)
+    k[:2] = k[6], k[5]
+    grip = fit_curve(0.07, k, young, None, GRIP)
+    secant = fit_curve(0.07, _law(SECANT, 0.07, young[3:]), young[3:], np.full(9, 0.05), SECANT)
+    mapping = MaterialMap(curves={"sphere": [secant, grip]}, provenance={})
+    soft = float(young[1])
+    est = mapping.estimate(
+        "sphere", 0.07, {SECANT: (float(_law(SECANT, 0.07, soft)), 0.0), GRIP: (float(k[1]), 0.0)}
+    )
+    parts = {p["feature"]: p for p in est.components}
+    assert parts[GRIP]["ambiguous"] and not parts[GRIP]["used"]
+    assert parts[SECANT]["extrapolated"] and parts[SECANT]["used"]
+    assert est.extrapolated and est.young_pa == pytest.approx(soft, rel=0.01)
+    mid = float(np.sqrt(young[4] * young[5]))  # on the grip's valid branch: both join, nothing flagged
+    est = mapping.estimate(
+        "sphere",
+        0.07,
+        {SECANT: (float(_law(SECANT, 0.07, mid)), 0.0), GRIP: (float(_law(TANGENT, 0.07, mid)), 0.0)},
+    )
+    assert all(p["used"] for p in est.components) and not est.extrapolated
+    assert est.young_pa == pytest.approx(mid, rel=0.01)
+    # A clear thumb off by 20 % (its run-to-run scatter on stiff foams) still places the foam inside
+    # the grip's valid range: the precise grip joins rather than being pushed out by it.
+    est = mapping.estimate(
+        "sphere",
+        0.07,
+        {
+            SECANT: (float(_law(SECANT, 0.07, 1.2 * mid)), 0.0),
+            GRIP: (float(_law(TANGENT, 0.07, mid)), 0.001 * float(_law(TANGENT, 0.07, mid))),
+        },
+    )
+    parts = {p["feature"]: p for p in est.components}
+    assert parts[GRIP]["used"] and parts[GRIP]["valid_range_pa"][0] == pytest.approx(young[2])
+    assert abs(math.log(est.young_pa / mid)) < abs(math.log(1.2))
+
+
+def test_a_fold_reaches_past_its_own_knots_by_their_spread_and_a_floor():
+    """A regime outside the valid range is sampled only at its knots: a run of it that reads a little
+    stiffer than they did (the 65 mm sphere's folded fingers: 0.79-0.83 over six seeds, 0.85 in an
+    unseen run) must still count as folded, or it passes as a clear, tight and wrong estimate."""
+    young = np.geomspace(1e4, 3e5, 12)
+    k = _law(TANGENT, 0.07, young)
+    k[0] = k[6]  # the softest foam reads like the seventh
+    noise = np.zeros(12)
+    floor = fit_curve(0.07, k, young, noise, GRIP)
+    assert floor.is_folded(math.log(k[6] * 1.12)) and not floor.is_folded(math.log(k[6] * 1.2))
+    noise[0] = 0.1  # that knot's seeds spread by 10 %: three sigma beyond it is folded too
+    spread = fit_curve(0.07, k, young, noise, GRIP)
+    assert spread.is_folded(math.log(k[6] * 1.25)) and not spread.is_folded(math.log(k[6] * 1.4))
 
 
 def test_too_few_monotone_points_cannot_make_a_curve():

@@ -247,6 +247,24 @@ def _folded(k: np.ndarray, span: slice, noise_log_k: np.ndarray) -> tuple[tuple[
     return tuple(out)
 
 
+def _contradicts(other: dict, part: dict) -> bool:
+    """`other` refutes `part`'s valid branch: at `part`'s modulus `other` would be on its own valid
+    branch, yet its estimate disagrees with `part`'s beyond their joint 95 % interval."""
+    lo, hi = other["valid_log_e"]
+    apart = abs(part["log_e"] - other["log_e"])
+    return lo <= part["log_e"] <= hi and apart > Z95 * math.hypot(part["sigma_log"], other["sigma_log"])
+
+
+def _consistent(inside: list[dict]) -> list[dict]:
+    """With every in-range feature ambiguous and no referee, the ones no other in-range feature refutes.
+
+    A folded grip on a soft 70 mm sphere reads what its valid branch puts at twice the modulus; that
+    modulus lies inside the thumb's valid ranges, where the thumb's pad would read it too, and does
+    not: the grip is refuted. The thumb's own estimate lies below the grip's valid range, where a
+    folded grip is what one expects: it stands. Empty when every feature is refuted."""
+    return [p for p in inside if not any(_contradicts(o, p) for o in inside if o is not p)]
+
+
 @dataclass(frozen=True)
 class MaterialMap:
     """Curves per shape (any sizes and features)."""
@@ -320,14 +338,18 @@ class MaterialMap:
         # ones, or failing those the ones outside their own valid range (a thumb below its range says
         # the foam is softer than the grip's valid branch; the 67.5 mm sphere at 11 kPa read +81 % on
         # the grip's alone). Inside the range, not within the referees' interval: a clear feature
-        # that is off by its own noise must not push a precise one out.
+        # that is off by its own noise must not push a precise one out. Referees outside their range
+        # only pick the branch: their own value is an extrapolation (a 70 mm thumb secant below its
+        # range read 17.5 kPa on a 13.1 kPa sphere whose in-range tangent said 13.2), so the in-range
+        # features they admit carry the estimate.
         referees = clear or [p for p in parts if p["extrapolated"] and not p["ambiguous"]]
-        used = inside or parts
+        used = _consistent(inside) or inside or parts
         if referees:
             log_e, _ = _combine(referees)
-            used = referees + [
+            joined = [
                 p for p in inside if p["ambiguous"] and p["valid_log_e"][0] <= log_e <= p["valid_log_e"][1]
             ]
+            used = clear + joined if clear else (joined or referees)
         log_e, sigma = _combine(used)
         for p in parts:
             p["used"] = p in used

@@ -27,6 +27,9 @@ if TYPE_CHECKING:
     from twin.session import RunOutcome
 
 PHASES = ("close", "balance", "compress")
+REACQUIRE_LEAD_COUNTS = 150.0
+"""How far a re-closing finger's set point may lead its position: one 30 Hz cycle of the re-close
+(100 counts) and some, so the twin re-closes unhindered and a late hand is not wound up."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -115,7 +118,7 @@ class CompressController:
         if self.phase == "close":
             target = self._close(reading.t_s, position, load)
         elif self.phase == "balance":
-            target = self._balance(reading.t_s, torque, load, dt)
+            target = self._balance(reading.t_s, position, torque, load, dt)
         else:
             target = self._compress(reading.t_s)
         return HandCommand(
@@ -136,13 +139,18 @@ class CompressController:
             self._enter("balance", t_s)
         return target
 
-    def _balance(self, t_s: float, torque: np.ndarray, load: np.ndarray, dt: float) -> np.ndarray:
+    def _balance(
+        self, t_s: float, position: np.ndarray, torque: np.ndarray, load: np.ndarray, dt: float
+    ) -> np.ndarray:
         p = self.profile
         error = p.grasp_torque_nm - torque
         step = np.clip(p.balance_gain_counts_per_nm_s * error * dt, -100.0, 100.0)
         lost = load < p.contact_torque_nm / 2
-        step = np.where(lost, p.reacquire_velocity_counts_s * dt, step)
-        self._hold_counts = np.clip(self._hold_counts + step, 0, units.FINGER_MAX_COUNTS)
+        # Re-close only while the finger keeps up with its set point: on a hand whose replies come a
+        # cycle or two late the set point would otherwise run ahead and slam it into the object.
+        keeping_up = self._hold_counts - position < REACQUIRE_LEAD_COUNTS
+        step = np.where(lost, np.where(keeping_up, p.reacquire_velocity_counts_s * dt, 0.0), step)
+        self._hold_counts = np.clip(self._hold_counts + step, 0, units.FINGER_FULL_COUNTS)
         elapsed = t_s - self._t_phase
         settled = not lost.any() and bool(np.all(np.abs(error) <= p.balance_tolerance_nm))
         if (elapsed >= p.balance_s and settled) or elapsed >= p.balance_timeout_s:
@@ -154,7 +162,7 @@ class CompressController:
         p = self.profile
         t = t_s - self._t_phase
         wave = p.offset_counts + p.amplitude_counts * math.sin(2 * math.pi * p.frequency_hz * t + p.phase_rad)
-        return self.grasp_counts + wave
+        return np.clip(self.grasp_counts + wave, 0, units.FINGER_MAX_COUNTS)
 
     def _enter(self, phase: str, t_s: float) -> None:
         self.phase = phase

@@ -116,6 +116,17 @@ def test_a_finger_knocked_off_the_object_closes_again_and_the_balance_waits_for_
     assert grasp_torque == pytest.approx(np.full(3, profile.grasp_torque_nm), abs=tolerance)
 
 
+def test_set_points_never_pass_the_hands_limit_even_with_nothing_in_it():
+    """An empty hand: the close times out, the balance re-closes fingers that feel nothing, and the
+    compression rides on top; no set point may pass the hand's limit, which the safety layer would
+    refuse (a camera-loaded hardware loop once reached 17807 counts)."""
+    profile = CompressProfile(close_timeout_s=2.0)
+    controller, hand = CompressController(profile), ToyHand(contact_counts=(1e9, 1e9, 1e9))
+    log = drive(controller, hand, 14.0)
+    assert log[-1][1] == "compress"
+    assert max(float(target.max()) for _, _, target in log) <= units.FINGER_MAX_COUNTS
+
+
 def test_nothing_to_grasp_times_out_into_balance():
     controller = CompressController(CompressProfile(close_timeout_s=2.0))
     log = drive(controller, ToyHand(contact_counts=(1e9, 1e9, 1e9)), 3.0)

@@ -51,7 +51,9 @@ def test_the_fit_finds_the_modulus_within_3_percent_and_holds_what_the_run_canno
     held = "damping" in result["held_at_description"]
     assert held == (not result["identifiable"]["damping"])
     assert result["fitted"]["damping"] == pytest.approx(0.002, rel=0.10)
-    assert result["rms_fitted"]["position_counts"] < min(1.0, result["rms_initial"]["position_counts"])
+    # Never worse than where it started, and within a count (an identify estimate that is already the
+    # best the replays can tell is kept as it is: then the two are equal).
+    assert result["rms_fitted"]["position_counts"] <= min(1.0, result["rms_initial"]["position_counts"])
     assert (out / "fit.png").stat().st_size > 10_000
 
 

@@ -809,7 +809,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     else:
         print("streams and units: the same (hand, command, tactile where both have it)")
     print("finger positions: " + describe(agreement))
-    print(f"  outside the first-contact window (+-0.25 s): worst {settled.max_relative_error:.2%} of travel")
+    print(f"  outside the grasp (first contact to compression, +-0.25 s): worst {settled.max_relative_error:.2%} of travel")
     return 0
 
 

@@ -110,10 +110,16 @@ def phase_changes_s(run: Path | str) -> list[float]:
 
 
 def contact_windows_s(run: Path | str, half_width_s: float = 0.25) -> tuple[tuple[float, float], ...]:
-    """Windows around the end of closing (first contact): there one sample of timing jitter at the
-    approach speed (12000 counts/s x 33 ms = 400 counts) outweighs everything else."""
+    """The grasp, from the end of closing (first contact) to the start of compressing, widened by
+    `half_width_s` either side: there contact events decide the path and their timing is a matter of
+    a sample. One 33 ms sample of jitter at the 12000 counts/s approach is 400 counts by itself, and a
+    finger the touch knocked off the object re-closes a sample sooner or later (experiments/compress.py).
+    """
     changes = phase_changes_s(run)
-    return ((changes[0] - half_width_s, changes[0] + half_width_s),) if changes else ()
+    if not changes:
+        return ()
+    end = changes[1] if len(changes) > 1 else changes[0]
+    return ((changes[0] - half_width_s, end + half_width_s),)
 
 
 def describe(agreement: PositionAgreement) -> str:

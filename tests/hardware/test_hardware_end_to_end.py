@@ -99,8 +99,9 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert np.all(hw_tips > 0.5) and hw_tips.sum() == pytest.approx(sim_tips.sum(), rel=0.25)
     assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
     agreement = position_agreement(tmp_path / "sim", tmp_path / "hw")
-    # Within 2 % of the travel everywhere but at first contact, where one 33 ms sample of timing
-    # jitter at 12000 counts/s is 400 counts (3.2 %) by itself; there, and overall, the RMS says it.
+    # Within 2 % of the travel everywhere but during the grasp (first contact to the compression),
+    # where one 33 ms sample of timing jitter at 12000 counts/s is 400 counts (3.2 %) by itself and a
+    # finger knocked off the block re-closes a sample sooner or later; there, and overall, the RMS says it.
     settled = position_agreement(
         tmp_path / "sim", tmp_path / "hw", exclude_s=contact_windows_s(tmp_path / "sim")
     )

@@ -383,8 +383,7 @@ def cmd_run_free(args: argparse.Namespace) -> int:
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """`twin identify`: eq. 4 per finger, the modulus, and the files that show them."""
-    from twin.identify.identify import identify_run
-    from twin.identify.report import write_results
+    from twin.identify.report import FigureProcess, write_results
 
     for path, flag in ((args.run_dir, "RUN"), (args.free, "--free")):
         if path is not None and not (path / "run.json").is_file():
@@ -392,8 +391,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if (args.shape is None) != (args.size_mm is None):
         raise ConfigError("--shape and --size-mm go together")
     size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
-    ident = identify_run(args.run_dir, args.free, args.model, shape=args.shape, size_m=size)
-    paths = write_results(ident, args.out or args.run_dir / "identify")
+    with FigureProcess() as figure_process:  # imports matplotlib on the other core meanwhile
+        from twin.identify.identify import identify_run
+
+        ident = identify_run(args.run_dir, args.free, args.model, shape=args.shape, size_m=size)
+        paths = write_results(ident, args.out or args.run_dir / "identify", figure_process)
     if args.json:
         print(paths["results"].read_text(), end="")
         return 0
@@ -809,7 +811,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     else:
         print("streams and units: the same (hand, command, tactile where both have it)")
     print("finger positions: " + describe(agreement))
-    print(f"  outside the grasp (first contact to compression, +-0.25 s): worst {settled.max_relative_error:.2%} of travel")
+    worst = settled.max_relative_error
+    print(f"  outside the grasp (first contact to compression, +-0.25 s): worst {worst:.2%} of travel")
     return 0
 
 

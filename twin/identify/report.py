@@ -5,11 +5,16 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
+import os
+from multiprocessing.connection import Connection
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twin.identify.identify import Identification
+if TYPE_CHECKING:
+    from twin.identify.identify import Identification
 
 RESULTS_FILE = "identify.json"
 FIGURE_FILE = "identify.png"
@@ -18,13 +23,23 @@ PLOT_POINTS = 600
 """Samples drawn per series: more add nothing a reader can see, and cost the figure time."""
 
 
-def write_results(ident: Identification, out_dir: Path) -> dict[str, Path]:
-    """identify.json, identify.png and identify.rrd in out_dir (created); returns their paths."""
+def write_results(
+    ident: Identification, out_dir: Path, figure_process: FigureProcess | None = None
+) -> dict[str, Path]:
+    """identify.json, identify.png and identify.rrd in out_dir (created); returns their paths.
+
+    With a started `figure_process` the figure is drawn there while this process writes the recording.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"results": out_dir / RESULTS_FILE, "figure": out_dir / FIGURE_FILE, "rerun": out_dir / RRD_FILE}
     paths["results"].write_text(json.dumps(json_safe(ident.to_json()), indent=2, allow_nan=False) + "\n")
-    plot(ident, paths["figure"])
+    if figure_process is None:
+        plot(ident, paths["figure"])
+    else:
+        figure_process.draw(figure_series(ident), paths["figure"])
     log_rerun(ident, paths["rerun"])
+    if figure_process is not None:
+        figure_process.wait()
     return paths
 
 
@@ -41,42 +56,110 @@ def json_safe(x: object) -> object:
 
 def plot(ident: Identification, path: Path) -> Path:
     """Per finger: R against delta (pads, gauges through eq. 4, model) and R over time."""
-    import matplotlib
+    return draw_figure(figure_series(ident), path)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 3, figsize=(15, 8))
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.92, bottom=0.07, wspace=0.25, hspace=0.3)
-    for f, (top, bottom) in zip(ident.fingers, axes.T, strict=True):
+def figure_series(ident: Identification) -> dict:
+    """What the figure shows, as plain numbers and text: drawing it needs nothing but matplotlib."""
+    fingers = []
+    for f in ident.fingers:
         order = np.argsort(f.delta_m)
         s = slice(None, None, max(1, len(f.t_s) // PLOT_POINTS))  # long runs: every n-th sample on screen
-        top.plot(f.delta_m[s] * 1e3, f.reaction_tactile_n[s], ".", ms=3, alpha=0.5, label="tactile R (eq. 6)")
-        top.plot(
-            f.delta_m[s] * 1e3, f.reaction_torque_n[s], ".", ms=2, alpha=0.3, label="R from the gauge (eq. 4)"
+        fingers.append(
+            {
+                "title": f"F{f.finger}: k_s = {f.secant_n_m:.0f} N/m",
+                "delta_mm": f.delta_m[s] * 1e3,
+                "tactile_n": f.reaction_tactile_n[s],
+                "gauge_n": f.reaction_torque_n[s],
+                "rest_delta_mm": f.delta_m[order] * 1e3,
+                "rest_n": f.fit.predict(f.delta_m[order], np.zeros_like(order, dtype=float)),
+                "rest_label": f"{f.fit.model}, rate 0",
+                "t_s": f.t_s,
+                "tactile_t_n": f.reaction_tactile_n,
+                "gauge_t_n": f.reaction_torque_n,
+                "model_t_n": f.reaction_model_n,
+                "model_label": f"model (R^2 {f.fit.r2:.2f})",
+            }
         )
-        rest = f.fit.predict(f.delta_m[order], np.zeros_like(order, dtype=float))
-        top.plot(f.delta_m[order] * 1e3, rest, "k-", lw=1.5, label=f"{f.fit.model}, rate 0")
-        top.set(
-            xlabel="indentation delta (mm)",
-            ylabel="R (N)",
-            title=f"F{f.finger}: k_s = {f.secant_n_m:.0f} N/m",
-        )
-        bottom.plot(f.t_s, f.reaction_tactile_n, lw=1, label="tactile")
-        bottom.plot(f.t_s, f.reaction_torque_n, lw=0.8, alpha=0.7, label="gauge (eq. 4)")
-        bottom.plot(f.t_s, f.reaction_model_n, "k--", lw=1, label=f"model (R^2 {f.fit.r2:.2f})")
-        bottom.set(xlabel="t (s)", ylabel="R (N)")
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=8)
     title = f"{ident.run_path.name}: {ident.model}"
     if ident.material:
         m = ident.material
         low, high = (v / 1e3 for v in m["ci95_pa"])
         title += f"; E = {m['young_pa'] / 1e3:.1f} kPa (95 % {low:.1f}-{high:.1f})"
-    fig.suptitle(title)
+    return {"title": title, "fingers": fingers}
+
+
+def draw_figure(series: dict, path: Path) -> Path:
+    """The PNG of `figure_series`; no pyplot, so nothing global and any process can draw it."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(15, 8))
+    axes = fig.subplots(2, 3)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.92, bottom=0.07, wspace=0.25, hspace=0.3)
+    for f, (top, bottom) in zip(series["fingers"], axes.T, strict=True):
+        top.plot(f["delta_mm"], f["tactile_n"], ".", ms=3, alpha=0.5, label="tactile R (eq. 6)")
+        top.plot(f["delta_mm"], f["gauge_n"], ".", ms=2, alpha=0.3, label="R from the gauge (eq. 4)")
+        top.plot(f["rest_delta_mm"], f["rest_n"], "k-", lw=1.5, label=f["rest_label"])
+        top.set(xlabel="indentation delta (mm)", ylabel="R (N)", title=f["title"])
+        bottom.plot(f["t_s"], f["tactile_t_n"], lw=1, label="tactile")
+        bottom.plot(f["t_s"], f["gauge_t_n"], lw=0.8, alpha=0.7, label="gauge (eq. 4)")
+        bottom.plot(f["t_s"], f["model_t_n"], "k--", lw=1, label=f["model_label"])
+        bottom.set(xlabel="t (s)", ylabel="R (N)")
+    axes[0, 0].legend(fontsize=8)
+    axes[1, 0].legend(fontsize=8)
+    fig.suptitle(series["title"])
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
+
+
+class FigureProcess:
+    """A worker process that imports matplotlib while the caller identifies the run, then draws.
+
+    Importing matplotlib and drawing are about 0.8 s of `twin identify`'s ~2 s on a 60 s run; on the
+    second core they overlap the identification and the Rerun recording instead of following them.
+    Use as a context manager; `draw` hands it the figure, `wait` returns once the PNG is on disk.
+    """
+
+    def __enter__(self) -> FigureProcess:
+        ctx = multiprocessing.get_context("spawn")  # fork would copy whatever threads the caller runs
+        self._conn, child = ctx.Pipe()
+        self._process = ctx.Process(target=_figure_worker, args=(child,), daemon=True, name="twin-figure")
+        self._process.start()
+        child.close()
+        return self
+
+    def draw(self, series: dict, path: Path) -> None:
+        self._conn.send((series, str(path)))
+
+    def wait(self) -> None:
+        try:
+            error = self._conn.recv()
+        except EOFError:
+            raise RuntimeError("the figure process died before writing the figure") from None
+        if error is not None:
+            raise RuntimeError(f"the figure could not be drawn: {error}")
+
+    def __exit__(self, *exc: object) -> None:
+        self._conn.close()  # the worker exits on its own once the pipe closes; nothing waits for it
+        if exc[0] is not None:
+            self._process.terminate()
+
+
+def _figure_worker(conn: Connection) -> None:
+    """Import matplotlib now; draw the one figure sent; report None or the error; leave at once."""
+    from matplotlib.figure import Figure  # noqa: F401
+
+    try:
+        series, path = conn.recv()
+    except EOFError:  # the caller failed before it had a figure to draw
+        os._exit(0)
+    try:
+        draw_figure(series, Path(path))
+        conn.send(None)
+    except Exception as e:  # the caller reports it as one line
+        conn.send(f"{type(e).__name__}: {e}")
+    conn.close()
+    os._exit(0)  # the PNG is closed; skip tearing matplotlib down, which the caller would wait for
 
 
 def log_rerun(ident: Identification, path: Path) -> Path:

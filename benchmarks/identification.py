@@ -23,11 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.build_material_map import DURATION_S, YOUNG_RANGE_PA, run_complete
+from experiments.build_material_map import DURATION_S, draw_moduli, run_complete
 
 RANGE_PA = (1e4, 3e5)
-GRID_POINTS = (16, 24)
-"""The mapping's grids (experiments.build_material_map --points): drawn moduli keep clear of both."""
 SIZES_MM = {70.0: 12, 65.0: 9, 67.5: 9}
 BETWEEN_SIZES_MM = {68.75: 4}
 SOFT_END_PA = (1.5e4, 2.2e4)
@@ -42,17 +40,6 @@ moduli read up to 49 % off (docs/identification.md). Drawn after the other table
 and seeds stay as they were."""
 FIT_CASES = 8
 TIMING_RUN_S = 60.0
-
-
-def draw_moduli(n: int, rng: np.random.Generator, range_pa: tuple[float, float] = RANGE_PA) -> list[float]:
-    """n moduli log-uniform in range_pa, each >= 3 % away from the mapping's grid."""
-    grid = np.concatenate([np.geomspace(*YOUNG_RANGE_PA, n) for n in GRID_POINTS])
-    out: list[float] = []
-    while len(out) < n:
-        e = float(np.exp(rng.uniform(*np.log(range_pa))))
-        if np.min(np.abs(np.log(grid / e))) > np.log(1.03):
-            out.append(e)
-    return out
 
 
 def make_run(args: tuple[float, float, int, float, str]) -> dict:

@@ -26,6 +26,8 @@ from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap
 
 YOUNG_RANGE_PA = (8e3, 3.6e5)
 """A little wider than the 1e4-3e5 Pa the mapping is for, so its ends are not extrapolated."""
+GRID_POINTS = (16, 24)
+"""The stored mapping's grids (--points for 60/75/80 mm and for 65/67.5/70 mm)."""
 DURATION_S = 14.0
 """Close and balance take ~3.5 s; the rest is 5 whole compression cycles at 0.5 Hz."""
 SOFT_BELOW_PA = 3e4
@@ -58,6 +60,17 @@ def sweep_run(
     result = identify_run(run_dir, material_map=MaterialMap(curves={}, provenance={}))
     features = {name: value for name, (value, _) in material_features(result.fingers, result.grip).items()}
     return shape, size_m, young_pa, seed, features
+
+
+def draw_moduli(n: int, rng: np.random.Generator, range_pa: tuple[float, float] = (1e4, 3e5)) -> list[float]:
+    """n moduli log-uniform in range_pa, each >= 3 % away from the stored mapping's grids: unseen foams."""
+    grid = np.concatenate([np.geomspace(*YOUNG_RANGE_PA, n) for n in GRID_POINTS])
+    out: list[float] = []
+    while len(out) < n:
+        e = float(np.exp(rng.uniform(*np.log(range_pa))))
+        if np.min(np.abs(np.log(grid / e))) > np.log(1.03):
+            out.append(e)
+    return out
 
 
 def _log_mean(values: list[float]) -> float:

@@ -186,6 +186,29 @@ def test_a_fold_reaches_past_its_own_knots_by_their_spread_and_a_floor():
     assert spread.is_folded(math.log(k[6] * 1.25)) and not spread.is_folded(math.log(k[6] * 1.4))
 
 
+def test_a_soft_foam_reading_past_the_stiffest_knot_is_folded_not_extrapolated():
+    """Fingers folded over a soft sphere can read stiffer than the stiffest foam of the grid (the 65 mm
+    grip: 1.7 N*m per 1000 counts at 11 kPa, 1.58 at 360 kPa). Extrapolated, the grip alone said
+    +2691 %; as a fold it is set aside and the thumb, just below its own range, carries the estimate."""
+    young = np.geomspace(1e4, 3e5, 12)
+    k = _law(TANGENT, 0.07, young)
+    k[0] = 1.1 * k[-1]  # the softest foam reads past the stiffest
+    grip = fit_curve(0.07, k, young, np.zeros(12), GRIP)
+    assert grip.young_range_pa == pytest.approx((young[1], young[-1]))
+    assert grip.is_folded(math.log(1.15 * k[-1])) and not grip.is_folded(math.log(1.4 * k[-1]))
+    assert not grip.is_folded(math.log(0.9 * k[1]))  # below the range both branches point softer
+    secant = fit_curve(0.07, _law(SECANT, 0.07, young[2:]), young[2:], np.full(10, 0.05), SECANT)
+    mapping = MaterialMap(curves={"sphere": [secant, grip]}, provenance={})
+    soft = float(young[0])
+    est = mapping.estimate(
+        "sphere", 0.07, {SECANT: (float(_law(SECANT, 0.07, soft)), 0.0), GRIP: (float(k[0]), 1e-3)}
+    )
+    parts = {p["feature"]: p for p in est.components}
+    assert parts[GRIP]["ambiguous"] and parts[GRIP]["extrapolated"] and not parts[GRIP]["used"]
+    assert parts[SECANT]["used"] and est.extrapolated
+    assert est.young_pa == pytest.approx(soft, rel=0.01)
+
+
 def test_too_few_monotone_points_cannot_make_a_curve():
     with pytest.raises(MappingError, match="only 3 grid points"):
         fit_curve(0.07, [1, 2, 3, 1, 1.5, 1, 0.5], np.geomspace(1e4, 3e5, 7))
@@ -236,3 +259,76 @@ def test_on_the_stored_mapping_a_soft_70_mm_sphere_rests_on_the_features_that_ho
     assert used == [carried_by] and not est.extrapolated
     assert est.young_pa == pytest.approx(young_pa, rel=0.05)
     assert est.ci95_pa[0] <= young_pa <= est.ci95_pa[1]
+
+
+@pytest.mark.parametrize(
+    ("features", "carried_by", "extrapolated"),
+    [
+        # Both thumb features clear and far apart: the tangent's 19.6 kPa lies inside the secant's
+        # valid range, where the secant would read it, and it reads 11.7; the secant's value lies
+        # below the tangent's range (from 15.5 kPa). The tangent is refuted (combined: +21 %).
+        ({SECANT: 54.92, TANGENT: 964.3, GRIP: 1.410}, [SECANT], False),
+        # Fingers folded over the top: the grip reads past the stiffest knot (alone: +2691 %). It is
+        # a fold, not an extrapolation; the thumb, just below its ranges, carries the estimate.
+        ({SECANT: 27.07, TANGENT: 612.1, GRIP: 1.727}, [SECANT, TANGENT], True),
+    ],
+)
+def test_on_the_stored_mapping_a_soft_65_mm_sphere_is_not_carried_by_a_feature_off_its_branch(
+    features: dict[str, float], carried_by: list[str], extrapolated: bool
+):
+    """Stiffnesses identified on the twin's 65 mm sphere at 11.1 kPa (noise seeds 9 and 7, which the
+    mapping never used)."""
+    young_pa = 11_139.0
+    est = MaterialMap.load(MAP_FILE).estimate(
+        "sphere", 0.065, {name: (k, 0.0) for name, k in features.items()}
+    )
+    assert [p["feature"] for p in est.components if p["used"]] == carried_by
+    assert est.extrapolated == extrapolated
+    assert est.young_pa == pytest.approx(young_pa, rel=0.06)
+    assert est.ci95_pa[0] <= young_pa <= est.ci95_pa[1]
+
+
+def test_a_clear_feature_read_where_another_clear_one_refutes_it_is_left_out():
+    """Two clear features far apart: the one whose modulus lies inside the other's valid range, where
+    the other would read it too, is refuted; the other's lies below the first one's range, where the
+    first is not expected to hold. When each refutes the other, both stay (the Birge ratio widens)."""
+    young = np.geomspace(1e4, 3e5, 12)
+    secant = fit_curve(0.07, _law(SECANT, 0.07, young), young, np.full(12, 0.05), SECANT)
+    tangent = fit_curve(0.07, _law(TANGENT, 0.07, young[3:]), young[3:], np.full(9, 0.05), TANGENT)
+    mapping = MaterialMap(curves={"sphere": [secant, tangent]}, provenance={})
+    soft = float(young[1])  # below the tangent's range, which reads like young[5] there
+    est = mapping.estimate(
+        "sphere",
+        0.07,
+        {
+            SECANT: (float(_law(SECANT, 0.07, soft)), 0.0),
+            TANGENT: (float(_law(TANGENT, 0.07, young[5])), 0.0),
+        },
+    )
+    parts = {p["feature"]: p for p in est.components}
+    assert not parts[TANGENT]["extrapolated"] and not parts[TANGENT]["ambiguous"]
+    assert parts[SECANT]["used"] and not parts[TANGENT]["used"]
+    assert est.young_pa == pytest.approx(soft, rel=0.01)
+    both_inside = {
+        SECANT: (float(_law(SECANT, 0.07, young[6])), 0.0),
+        TANGENT: (float(_law(TANGENT, 0.07, young[9])), 0.0),
+    }
+    est = mapping.estimate("sphere", 0.07, both_inside)
+    assert all(p["used"] for p in est.components)
+    assert young[6] < est.young_pa < young[9] and est.ci95_pa[0] < young[6] and est.ci95_pa[1] > young[9]
+
+
+def test_an_extrapolation_is_less_sure_the_further_it_reaches():
+    """Past its valid range a curve follows its end segment, which the grasp need not: the interval
+    grows with the reach (half a unit of 1-sigma per unit of ln E), inside the range it does not."""
+    mapping = _map()
+    young = np.geomspace(1e4, 3e5, 12)
+
+    def width(e: float) -> float:
+        est = mapping.estimate("sphere", 0.06, {SECANT: (float(_law(SECANT, 0.06, e)), 0.0)})
+        return math.log(est.ci95_pa[1] / est.ci95_pa[0])
+
+    inside = width(float(np.sqrt(young[4] * young[5])))
+    near, far = width(young[0] / 1.5), width(young[0] / 4)
+    assert inside < near < far
+    assert far - inside == pytest.approx(2 * 1.96 * 0.5 * math.log(4), rel=0.05)

@@ -415,6 +415,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
         if "twin_young_pa" in m:
             line += f"; the twin's E {m['twin_young_pa'] / 1e3:.2f} kPa, error {100 * m['error']:+.1f} %"
         print(line)
+        if m.get("branch_unsettled"):
+            print(
+                "  every feature used is on a folded stretch, none picks its branch: the interval spans both"
+            )
         print("  by feature: " + "; ".join(_feature_summary(c) for c in m["features"]))
     for note in ident.notes:
         print(f"note: {note}")

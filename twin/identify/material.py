@@ -84,9 +84,19 @@ class Curve:
     rose from a softer regime), inside the range or beyond its far end: a stiffness there has two
     moduli, so it is ambiguous."""
 
+    folded_young_pa: tuple[tuple[float, float], ...] = ()
+    """Per folded interval, the moduli of the grid's branch outside the valid range that reached it."""
+
     def is_folded(self, log_k: float) -> bool:
         """Whether a stiffness here is also reached outside the valid range."""
         return any(lo < log_k < hi for lo, hi in self.folded_log_k)
+
+    def other_branch_pa(self, log_k: float) -> tuple[float, float] | None:
+        """The moduli outside the valid range that may also read this stiffness (None: none)."""
+        hits = [
+            e for (lo, hi), e in zip(self.folded_log_k, self.folded_young_pa, strict=False) if lo < log_k < hi
+        ]
+        return (min(e[0] for e in hits), max(e[1] for e in hits)) if hits else None
 
     @property
     def log_k_range(self) -> tuple[float, float]:
@@ -118,6 +128,7 @@ class Curve:
             "loo_rms_log": self.loo_rms_log,
             "young_range_pa": list(self.young_range_pa),
             "folded_log_k": [list(f) for f in self.folded_log_k],
+            "folded_young_pa": [list(f) for f in self.folded_young_pa],
         }
 
     @classmethod
@@ -132,6 +143,7 @@ class Curve:
             loo_rms_log=float(c["loo_rms_log"]),
             young_range_pa=(float(c["young_range_pa"][0]), float(c["young_range_pa"][1])),
             folded_log_k=tuple((float(lo), float(hi)) for lo, hi in c.get("folded_log_k", [])),
+            folded_young_pa=tuple((float(lo), float(hi)) for lo, hi in c.get("folded_young_pa", [])),
         )
 
 
@@ -145,6 +157,9 @@ class MaterialEstimate:
     size_m: float
     extrapolated: bool
     components: list[dict] = field(default_factory=list)
+    branch_unsettled: bool = False
+    """Every feature used is on a folded stretch and nothing picked its branch: the interval covers
+    the other branch's moduli too."""
 
     def to_json(self) -> dict:
         """Plain-JSON form for the results file."""
@@ -154,6 +169,7 @@ class MaterialEstimate:
             "shape": self.shape,
             "size_m": self.size_m,
             "extrapolated": self.extrapolated,
+            "branch_unsettled": self.branch_unsettled,
             "features": self.components,
         }
 
@@ -205,7 +221,7 @@ def fit_curve(
     young, k = np.asarray(young_pa, float)[order], np.asarray(stiffness_n_m, float)[order]
     noise = np.zeros_like(k) if noise_log_k is None else np.nan_to_num(np.asarray(noise_log_k, float)[order])
     span = monotone_span(young, k)
-    folded = _folded(k, span, noise)
+    folded = _folded(k, span, noise, young)
     young, k, noise = young[span], k[span], noise[span]
     if len(young) < MIN_POINTS:
         raise MappingError(
@@ -230,11 +246,14 @@ def fit_curve(
         knots_noise_log_k=tuple(map(float, noise)),
         loo_rms_log=float(np.sqrt(np.mean(np.square(errors)))),
         young_range_pa=(float(young[0]), float(young[-1])),
-        folded_log_k=folded,
+        folded_log_k=tuple(f for f, _ in folded),
+        folded_young_pa=tuple(e for _, e in folded),
     )
 
 
-def _folded(k: np.ndarray, span: slice, noise_log_k: np.ndarray) -> tuple[tuple[float, float], ...]:
+def _folded(
+    k: np.ndarray, span: slice, noise_log_k: np.ndarray, young: np.ndarray
+) -> list[tuple[tuple[float, float], tuple[float, float]]]:
     """ln k intervals that the grid reaches outside the span (k in E order) and that the span's own
     branch also claims: its range, and beyond it on the far side. Each side's branch runs continuously
     from the span's end knot through its own points, and each of its points reaches FOLD_MARGIN beyond
@@ -243,23 +262,30 @@ def _folded(k: np.ndarray, span: slice, noise_log_k: np.ndarray) -> tuple[tuple[
     Beyond the far side: softer foams reading stiffer than the stiffest valid knot (fingers folded over
     a soft sphere: the 65 mm grip read 1.7 N*m per 1000 counts at 11 kPa, above the 1.58 of 360 kPa) are
     as ambiguous as inside the range; the valid branch extrapolated would claim them too. On the near
-    side (a soft foam softer than the softest valid knot) the two branches agree on the direction."""
+    side (a soft foam softer than the softest valid knot) the two branches agree on the direction.
+    Each interval comes with the moduli of the branch that reached it, up to the span's end knot."""
     inside = k[span]
     lo, hi = float(np.log(inside[0])), float(np.log(inside[-1]))
     out = []
     sides = (
-        (slice(0, span.start), inside[0], lo, math.inf),
-        (slice(span.stop, len(k)), inside[-1], -math.inf, hi),
+        (slice(0, span.start), inside[0], lo, math.inf, (young[0], young[span.start])),
+        (slice(span.stop, len(k)), inside[-1], -math.inf, hi, (young[span.stop - 1], young[-1])),
     )
-    for side, end, floor, ceiling in sides:
+    for side, end, floor, ceiling, moduli in sides:
         branch, noise = k[side], noise_log_k[side]
         log_k = np.log(branch[branch > 0])
         margin = np.maximum(FOLD_MARGIN_SIGMAS * noise[branch > 0], FOLD_MARGIN_LOG)
         reached = np.concatenate([log_k - margin, log_k + margin, [np.log(end)]])
         a, b = max(float(reached.min()), floor), min(float(reached.max()), ceiling)
         if b - a > 1e-12:
-            out.append((a, b))
-    return tuple(out)
+            out.append(((a, b), (float(moduli[0]), float(moduli[1]))))
+    return out
+
+
+def _union(ranges: list[tuple[float, float] | None]) -> list[float] | None:
+    """The smallest range holding every given one (None: none given)."""
+    given = [r for r in ranges if r]
+    return [min(r[0] for r in given), max(r[1] for r in given)] if given else None
 
 
 def _contradicts(other: dict, part: dict) -> bool:
@@ -372,17 +398,24 @@ class MaterialMap:
             ]
             used = clear + joined if clear else (joined or referees)
         log_e, sigma = _combine(used)
+        low, high = log_e - Z95 * sigma, log_e + Z95 * sigma
+        unsettled = not referees and all(p["ambiguous"] for p in used)
+        if unsettled:  # nothing says which branch: the interval takes in the other one as well
+            others = [p["other_branch_pa"] for p in used if p["other_branch_pa"]]
+            low = min([low, *(math.log(o[0]) for o in others)])
+            high = max([high, *(math.log(o[1]) for o in others)])
         for p in parts:
             p["used"] = p in used
             p["young_pa"] = math.exp(p.pop("log_e"))
             p["valid_range_pa"] = [math.exp(v) for v in p.pop("valid_log_e")]
         return MaterialEstimate(
             young_pa=math.exp(log_e),
-            ci95_pa=(math.exp(log_e - Z95 * sigma), math.exp(log_e + Z95 * sigma)),
+            ci95_pa=(math.exp(low), math.exp(high)),
             shape=shape,
             size_m=size_m,
             extrapolated=all(p["extrapolated"] for p in used),
             components=parts,
+            branch_unsettled=unsettled,
         )
 
     def _feature_estimate(
@@ -424,4 +457,5 @@ class MaterialMap:
             "sigma_log": max(sigma_log, 1e-6),
             "extrapolated": extrapolated,
             "ambiguous": any(c.is_folded(log_k) for c in used),
+            "other_branch_pa": _union([c.other_branch_pa(log_k) for c in used]),
         }

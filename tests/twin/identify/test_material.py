@@ -332,3 +332,25 @@ def test_an_extrapolation_is_less_sure_the_further_it_reaches():
     near, far = width(young[0] / 1.5), width(young[0] / 4)
     assert inside < near < far
     assert far - inside == pytest.approx(2 * 1.96 * 0.5 * math.log(4), rel=0.05)
+
+
+def test_with_nothing_to_pick_the_branch_the_interval_spans_both(tmp_path):
+    """A folded feature alone cannot say which branch the foam is on (a 70 mm, 16.1 kPa sphere whose
+    grip and secant both read like 21.8 kPa: +35 %, outside an interval of 21.2-22.4). The interval
+    then takes in the moduli of the other branch; a clear feature settles it and keeps it tight."""
+    young = np.geomspace(1e4, 3e5, 12)
+    k = _law(TANGENT, 0.07, young)
+    k[:2] = k[6], k[5]
+    grip = fit_curve(0.07, k, young, None, GRIP)
+    assert grip.folded_young_pa == (pytest.approx((young[0], young[2])),)
+    clear = fit_curve(0.07, _law(SECANT, 0.07, young), young, np.full(12, 0.05), SECANT)
+    alone = MaterialMap(curves={"sphere": [grip]}, provenance={})
+    est = alone.estimate("sphere", 0.07, {GRIP: (float(k[1]), 0.0)})  # young[1], read as young[5]
+    assert est.branch_unsettled and est.young_pa == pytest.approx(young[5], rel=0.01)
+    assert est.ci95_pa[0] == pytest.approx(young[0]) and est.ci95_pa[0] <= young[1] <= est.ci95_pa[1]
+    settled = MaterialMap(curves={"sphere": [clear, grip]}, provenance={}).estimate(
+        "sphere", 0.07, {SECANT: (float(_law(SECANT, 0.07, young[5])), 0.0), GRIP: (float(k[5]), 0.0)}
+    )
+    assert not settled.branch_unsettled and settled.ci95_pa[0] > young[4]
+    again = MaterialMap.load(alone.save(tmp_path / "map.json"))
+    assert again.curves["sphere"][0].folded_young_pa == grip.folded_young_pa

@@ -25,6 +25,7 @@ SECTIONS = (
     "stereo_pipeline",
     "stereo_run",
     "identification",
+    "identification_unseen",
     "shape_network",
     "sweep_throughput",
 )

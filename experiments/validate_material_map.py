@@ -28,6 +28,62 @@ FIRST_SEED = 300
 and the benchmark 101-160."""
 
 
+def validate(
+    sizes_mm: list[float],
+    per_size: int,
+    soft_per_size: int,
+    *,
+    seed: int = 555,
+    first_seed: int = FIRST_SEED,
+    workers: int = 2,
+    keep_runs: Path | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Simulate and identify the unseen foams; one row per run (the estimate is None if none came)."""
+    from rich.progress import Progress
+
+    from twin.identify.identify import identify_run
+
+    rng = np.random.default_rng(seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        out_dir = keep_runs or Path(tmp)
+        jobs, noise_seed = [], first_seed
+        for size in sizes_mm:
+            for young in draw_moduli(per_size, rng) + draw_moduli(soft_per_size, rng, (1e4, 3e4)):
+                noise_seed += 1
+                jobs.append(("sphere", size / 1e3, float(round(young)), noise_seed, DURATION_S, str(out_dir)))
+        rows = []
+        with ProcessPoolExecutor(workers) as pool, Progress(disable=not progress) as bar:
+            task = bar.add_task("unseen foams", total=len(jobs))
+            for (_, size_m, young, run_seed, _, _), _features in zip(
+                jobs, pool.map(sweep_run, jobs), strict=True
+            ):
+                run = out_dir / f"sphere-{size_m * 1e3:.0f}mm-{young:.0f}Pa-s{run_seed}"
+                m = identify_run(run).material
+                rows.append({"size_mm": size_m * 1e3, "young_pa": young, "seed": run_seed, "estimate": m})
+                bar.advance(task)
+    for row in rows:
+        m = row["estimate"]
+        row["error"] = m["young_pa"] / row["young_pa"] - 1 if m else None
+        row["held"] = bool(m and m["ci95_pa"][0] <= row["young_pa"] <= m["ci95_pa"][1])
+        row["extrapolated"] = bool(m and m["extrapolated"])
+        row["branch_unsettled"] = bool(m and m.get("branch_unsettled"))
+    return sorted(rows, key=lambda r: (r["size_mm"], r["young_pa"]))
+
+
+def summary(rows: list[dict]) -> str:
+    """One line: how many runs, median and max |E error|, how many over 10 %, flags, intervals."""
+    errors = np.abs([r["error"] for r in rows if r["error"] is not None])
+    if errors.size == 0:
+        return f"none of {len(rows)} runs gave an estimate"
+    return (
+        f"{errors.size} of {len(rows)} runs estimated: median |E error| {100 * np.median(errors):.1f} %, "
+        f"max {100 * np.max(errors):.1f} %, {int(np.sum(errors > 0.1))} over 10 %; "
+        f"{sum(r['extrapolated'] for r in rows)} flagged extrapolated; "
+        f"the interval holds the truth in {sum(r['held'] for r in rows)}"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Simulate, identify, print."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -35,52 +91,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--per-size", type=int, default=10, help="moduli per size over 10-300 kPa")
     p.add_argument("--soft-per-size", type=int, default=10, help="more moduli per size over 10-30 kPa")
     p.add_argument("--seed", type=int, default=555, help="draws the moduli")
+    p.add_argument("--first-seed", type=int, default=FIRST_SEED, help="noise seeds start after this one")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--keep-runs", type=Path, help="keep the runs here, and reuse those already there")
     args = p.parse_args(argv)
     if min(args.per_size, args.soft_per_size) < 0 or args.workers < 1:
         p.error("--per-size and --soft-per-size must be >= 0, --workers >= 1")
-
-    from rich.progress import Progress
-
-    from twin.identify.identify import identify_run
-
-    rng = np.random.default_rng(args.seed)
-    with tempfile.TemporaryDirectory() as tmp:
-        out_dir = args.keep_runs or Path(tmp)
-        jobs, seed = [], FIRST_SEED
-        for size in args.sizes_mm:
-            for young in draw_moduli(args.per_size, rng) + draw_moduli(args.soft_per_size, rng, (1e4, 3e4)):
-                seed += 1
-                jobs.append(("sphere", size / 1e3, float(round(young)), seed, DURATION_S, str(out_dir)))
-        rows = []
-        with ProcessPoolExecutor(args.workers) as pool, Progress() as bar:
-            task = bar.add_task("unseen foams", total=len(jobs))
-            for (_, size_m, young, seed, _, _), _result in zip(jobs, pool.map(sweep_run, jobs), strict=True):
-                run = out_dir / f"sphere-{size_m * 1e3:.0f}mm-{young:.0f}Pa-s{seed}"
-                m = identify_run(run).material
-                rows.append((size_m * 1e3, young, seed, m))
-                bar.advance(task)
-    errors = np.array([m["young_pa"] / young - 1 for _, young, _, m in rows if m])
-    if errors.size == 0:
-        print(f"none of {len(rows)} runs gave an estimate")
-        return 0
-    for size, young, seed, m in sorted(rows, key=lambda r: (r[0], r[1])):
-        if not m:
-            print(f"{size:5.1f} mm {young / 1e3:6.1f} kPa  seed {seed}: no estimate")
-            continue
-        error = 100 * (m["young_pa"] / young - 1)
-        flag = "  extrapolated" if m["extrapolated"] else ""
-        held = "" if m["ci95_pa"][0] <= young <= m["ci95_pa"][1] else "  (truth outside the interval)"
-        print(f"{size:5.1f} mm {young / 1e3:6.1f} kPa  seed {seed}: {error:+6.1f} %{flag}{held}")
-    held = sum(m["ci95_pa"][0] <= young <= m["ci95_pa"][1] for _, young, _, m in rows if m)
-    flagged = sum(bool(m["extrapolated"]) for _, _, _, m in rows if m)
-    size_of = np.abs(errors)
-    print(
-        f"{len(errors)} of {len(rows)} runs estimated: median |E error| {100 * np.median(size_of):.1f} %, "
-        f"max {100 * np.max(size_of):.1f} %, {int(np.sum(size_of > 0.1))} over 10 %; "
-        f"{flagged} flagged extrapolated; the interval holds the truth in {held}"
+    rows = validate(
+        args.sizes_mm,
+        args.per_size,
+        args.soft_per_size,
+        seed=args.seed,
+        first_seed=args.first_seed,
+        workers=args.workers,
+        keep_runs=args.keep_runs,
     )
+    for r in rows:
+        head = f"{r['size_mm']:5.1f} mm {r['young_pa'] / 1e3:6.1f} kPa  seed {r['seed']}"
+        if r["error"] is None:
+            print(f"{head}: no estimate")
+            continue
+        flag = "  extrapolated" if r["extrapolated"] else ""
+        flag += "  branch unsettled" if r["branch_unsettled"] else ""
+        held = "" if r["held"] else "  (truth outside the interval)"
+        print(f"{head}: {100 * r['error']:+6.1f} %{flag}{held}")
+    print(summary(rows))
     return 0
 
 

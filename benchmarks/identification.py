@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.build_material_map import DURATION_S, draw_moduli, run_complete
+from experiments.build_material_map import DURATION_S, MAPPED_RANGE_PA, draw_moduli, run_complete
 
-RANGE_PA = (1e4, 3e5)
+RANGE_PA = MAPPED_RANGE_PA
 SIZES_MM = {70.0: 12, 65.0: 9, 67.5: 9}
 BETWEEN_SIZES_MM = {68.75: 4}
 SOFT_END_PA = (1.5e4, 2.2e4)

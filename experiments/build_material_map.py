@@ -24,8 +24,10 @@ import numpy as np
 
 from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve
 
+MAPPED_RANGE_PA = (1e4, 3e5)
+"""The moduli the mapping is for (issue 6's range)."""
 YOUNG_RANGE_PA = (8e3, 3.6e5)
-"""A little wider than the 1e4-3e5 Pa the mapping is for, so its ends are not extrapolated."""
+"""A little wider than MAPPED_RANGE_PA, so its ends are not extrapolated."""
 GRID_POINTS = (16, 24)
 """The stored mapping's grids (--points for 60/75/80 mm and for 65/67.5/70 mm)."""
 DURATION_S = 14.0
@@ -50,7 +52,7 @@ def sweep_run(
 
     base = next(p for p in LIBRARY.values() if p.shape == shape)
     foam = base.with_overrides(young_pa=young_pa, size_m=(size_m,) * 3)
-    run_dir = Path(out_dir) / f"{shape}-{size_m * 1e3:.0f}mm-{young_pa:.0f}Pa-s{seed}"
+    run_dir = Path(out_dir) / run_name(shape, size_m, young_pa, seed)
     if not run_complete(run_dir):  # resumable: a finished run is identified again, not re-run
         if run_dir.exists():
             import shutil
@@ -62,7 +64,14 @@ def sweep_run(
     return shape, size_m, young_pa, seed, features
 
 
-def draw_moduli(n: int, rng: np.random.Generator, range_pa: tuple[float, float] = (1e4, 3e5)) -> list[float]:
+def run_name(shape: str, size_m: float, young_pa: float, seed: int) -> str:
+    """The directory name of one sweep run (kept runs are found again by it)."""
+    return f"{shape}-{size_m * 1e3:.0f}mm-{young_pa:.0f}Pa-s{seed}"
+
+
+def draw_moduli(
+    n: int, rng: np.random.Generator, range_pa: tuple[float, float] = MAPPED_RANGE_PA
+) -> list[float]:
     """n moduli log-uniform in range_pa, each >= 3 % away from the stored mapping's grids: unseen foams."""
     grid = np.concatenate([np.geomspace(*YOUNG_RANGE_PA, n) for n in GRID_POINTS])
     out: list[float] = []

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.build_material_map import DURATION_S, draw_moduli, sweep_run
+from experiments.build_material_map import DURATION_S, draw_moduli, run_name, sweep_run
 
 FIRST_SEED = 300
 """Noise seeds from here on: the mapping uses 0-5, the fresh-seed checks in docs/identification.md 6-9
@@ -58,7 +58,7 @@ def validate(
             for (_, size_m, young, run_seed, _, _), _features in zip(
                 jobs, pool.map(sweep_run, jobs), strict=True
             ):
-                run = out_dir / f"sphere-{size_m * 1e3:.0f}mm-{young:.0f}Pa-s{run_seed}"
+                run = out_dir / run_name("sphere", size_m, young, run_seed)
                 m = identify_run(run).material
                 rows.append({"size_mm": size_m * 1e3, "young_pa": young, "seed": run_seed, "estimate": m})
                 bar.advance(task)

@@ -377,9 +377,8 @@ class MaterialMap:
         # 11.1 kPa sphere the thumb's tangent read 19.6 kPa, inside the secant's valid range, where the
         # secant would read it; the secant read 11.7 kPa, below the tangent's range (from 15.5 kPa),
         # where the tangent is erratic. Combined they said +21 %; the secant alone +5 %.
-        clear = _consistent([p for p in inside if not p["ambiguous"]]) or [
-            p for p in inside if not p["ambiguous"]
-        ]
+        unambiguous = [p for p in inside if not p["ambiguous"]]
+        clear = _consistent(unambiguous) or unambiguous
         # An ambiguous feature has a second modulus outside its valid range. It joins when the
         # unambiguous features place the foam inside that range, i.e. on its valid branch: the clear
         # ones, or failing those the ones outside their own valid range (a thumb below its range says

@@ -33,10 +33,11 @@ def write_results(
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"results": out_dir / RESULTS_FILE, "figure": out_dir / FIGURE_FILE, "rerun": out_dir / RRD_FILE}
     paths["results"].write_text(json.dumps(json_safe(ident.to_json()), indent=2, allow_nan=False) + "\n")
+    series = figure_series(ident)
     if figure_process is None:
-        plot(ident, paths["figure"])
+        draw_figure(series, paths["figure"])
     else:
-        figure_process.draw(figure_series(ident), paths["figure"])
+        figure_process.draw(series, paths["figure"])
     log_rerun(ident, paths["rerun"])
     if figure_process is not None:
         figure_process.wait()
@@ -54,13 +55,9 @@ def json_safe(x: object) -> object:
     return x
 
 
-def plot(ident: Identification, path: Path) -> Path:
-    """Per finger: R against delta (pads, gauges through eq. 4, model) and R over time."""
-    return draw_figure(figure_series(ident), path)
-
-
 def figure_series(ident: Identification) -> dict:
-    """What the figure shows, as plain numbers and text: drawing it needs nothing but matplotlib."""
+    """What the figure shows (per finger: R against delta from the pads, the gauges through eq. 4 and
+    the model, and R over time), as plain numbers and text: drawing it needs nothing but matplotlib."""
     fingers = []
     for f in ident.fingers:
         order = np.argsort(f.delta_m)

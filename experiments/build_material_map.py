@@ -22,7 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.identify.material import FEATURES, MAP_FILE, MappingError, MaterialMap, fit_curve
+from twin.identify.material import (
+    FALLING,
+    FEATURES,
+    MAP_FILE,
+    MappingError,
+    MaterialMap,
+    coordinate,
+    fit_curve,
+    knot_value,
+)
 
 MAPPED_RANGE_PA = (1e4, 3e5)
 """The moduli the mapping is for (issue 6's range)."""
@@ -60,7 +69,10 @@ def sweep_run(
             shutil.rmtree(run_dir)
         run_compress(SimBackend(foam, seed=seed), run_dir, duration_s=duration_s, object_name=foam.name)
     result = identify_run(run_dir, material_map=MaterialMap(curves={}, provenance={}))
-    features = {name: value for name, (value, _) in material_features(result.fingers, result.grip).items()}
+    features = {
+        name: value
+        for name, (value, _) in material_features(result.fingers, result.grip, result.closure).items()
+    }
     return shape, size_m, young_pa, seed, features
 
 
@@ -80,12 +92,6 @@ def draw_moduli(
         if np.min(np.abs(np.log(grid / e))) > np.log(1.03):
             out.append(e)
     return out
-
-
-def _log_mean(values: list[float]) -> float:
-    """Geometric mean of positive values; 0 if any is not positive (that grid point breaks the curve)."""
-    v = np.asarray(values, dtype=float)
-    return float(np.exp(np.mean(np.log(v)))) if (v > 0).all() else 0.0
 
 
 def run_complete(run_dir: Path) -> bool:
@@ -145,9 +151,12 @@ def main(argv: list[str] | None = None) -> int:
             rows = [(e, f[feature]) for _, size, e, _, f in results if abs(size * 1e3 - s) < 1e-6]
             young = np.unique([e for e, _ in rows])
             per_e = [[k for e, k in rows if e == y] for y in young]
-            k = np.array([_log_mean(ks) for ks in per_e])
+            k = np.array([knot_value(feature, ks) for ks in per_e])
             noise = np.array(
-                [np.std(np.log(ks), ddof=1) if len(ks) > 1 and min(ks) > 0 else 0.0 for ks in per_e]
+                [
+                    np.nan_to_num(np.std(coordinate(feature, ks), ddof=1)) if len(ks) > 1 else 0.0
+                    for ks in per_e
+                ]
             )
             try:
                 curve = fit_curve(s / 1e3, k, young, noise, feature)
@@ -160,7 +169,11 @@ def main(argv: list[str] | None = None) -> int:
                 f"{args.shape} {s:g} mm, {feature}: valid {lo / 1e3:.0f}-{hi / 1e3:.0f} kPa "
                 "(monotone there), "
                 f"leave-one-out {100 * (np.exp(curve.loo_rms_log) - 1):.1f} % RMS, run-to-run "
-                f"{100 * np.median(curve.knots_noise_log_k):.1f} % (median)"
+                + (
+                    f"{1e3 * np.median(curve.knots_noise_x):.0f} counts (median)"
+                    if feature in FALLING
+                    else f"{100 * np.median(curve.knots_noise_x):.1f} % (median)"
+                )
             )
     if not curves:
         print(f"build_material_map: no size of {args.shape} could be mapped", file=sys.stderr)

@@ -408,6 +408,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
             f"moment arm {f.moment_arm_m * 1e3:.1f} mm; eq. 4 residual {f.eq4_residual_rms_nm:.3f} N*m"
         )
     print(f"grip: {ident.grip[0]:.4f} +- {ident.grip[1]:.4f} N*m per 1000 counts (gauges against drives)")
+    print(
+        f"closure: {ident.closure[0]:.3f} +- {ident.closure[1]:.3f} thousand counts "
+        "(summed drives at the grasp torque; the sigma allows for the object's placement)"
+    )
     m = ident.material
     if m:
         low, high = (v / 1e3 for v in m["ci95_pa"])
@@ -428,9 +432,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def _feature_summary(part: dict) -> str:
     """One mapping feature's own estimate, and why it was left out if it was."""
-    why = "outside its valid range" if part["extrapolated"] else "on a folded stretch of its curve"
     return f"{part['feature']} {part['young_pa'] / 1e3:.1f} kPa" + (
-        "" if part["used"] else f" (not used: {why})"
+        "" if part["used"] else f" (not used: {part['left_out']})"
     )
 
 

@@ -8,8 +8,9 @@ Steps (paper §3.1 and §6.2):
 3. over whole compression cycles: the reaction model R(delta, delta_dot) fitted to the tactile R,
    the same R recovered from the strain gauges through eq. 4 (tau - hand terms over the measured
    moment arm) as a cross-check, and the secant stiffness mean R / mean delta;
-4. the grip stiffness (summed gauge torques on summed drive counts) and the thumb's secant and tangent
-   stiffnesses through the material mapping: E with a 95 % interval.
+4. the grasp closure (summed drive counts), the grip stiffness (summed gauge torques on summed drive
+   counts) and the thumb's secant and tangent stiffnesses through the material mapping: E with a 95 %
+   interval.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ DEFAULT_PERIOD_S = 2.0
 """Cycle length when the run does not record its compression frequency (compress default 0.5 Hz)."""
 THUMB = 2
 """F3, the finger whose secant stiffness the material mapping uses (twin.identify.material)."""
+CLOSURE_PLACEMENT_SIGMA_KCOUNTS = 0.1
+"""The grasp closure's 1-sigma for where the object sits on the palm, which the twin always centres: a
+70 mm, 16 kPa sphere placed 3 mm off the palm's centre along the thumb's line of action closed 0.14 and
+0.23 thousand counts further (0.03 across it), so 0.1 stands for about 1.5 mm of placement."""
 BASELINE_S = 0.3
 """Without a free-motion run, the gauge offset is the mean torque over the run's first 0.3 s (open hand)."""
 
@@ -86,6 +91,8 @@ class Identification:
     notes: list[str] = field(default_factory=list)
     grip: tuple[float, float] = (float("nan"), float("nan"))
     """The grip's stiffness through the hand's own sensors and its 1-sigma (grip_stiffness)."""
+    closure: tuple[float, float] = (float("nan"), float("nan"))
+    """The grasp closure in 1000 counts and its 1-sigma (grasp_closure)."""
 
     def to_json(self) -> dict:
         """The results file's content."""
@@ -96,6 +103,8 @@ class Identification:
             "fingers": [f.to_json() for f in self.fingers],
             "grip_stiffness_nm_per_kcount": self.grip[0],
             "grip_stiffness_sigma_nm_per_kcount": self.grip[1],
+            "grasp_closure_kcounts": self.closure[0],
+            "grasp_closure_sigma_kcounts": self.closure[1],
             "material": self.material,
             "notes": self.notes,
         }
@@ -141,6 +150,20 @@ def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: in
     per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
     sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
     return slope(np.flatnonzero(window)), sigma
+
+
+def grasp_closure(signals: FingerSignals, window: NDArray[np.bool_], cycles: int) -> tuple[float, float]:
+    """How far the hand closes to hold the object: the three fingers' summed drive counts over whole
+    cycles, in 1000 counts, with a 1-sigma from the cycles' spread and the object's placement
+    (CLOSURE_PLACEMENT_SIGMA_KCOUNTS).
+
+    The grasp torque is the procedure's, so this is the indentation that torque makes, measured from
+    the object's undeformed size rather than from a detected first contact; it falls steadily with E
+    where the stiffnesses change regime (fingers folding over a soft sphere)."""
+    drive = signals.drive_counts.sum(axis=1) / 1e3
+    per_cycle = np.array([drive[i].mean() for i in np.array_split(np.flatnonzero(window), cycles)])
+    spread = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else 0.0
+    return float(drive[window].mean()), math.hypot(spread, CLOSURE_PLACEMENT_SIGMA_KCOUNTS)
 
 
 def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
@@ -235,16 +258,17 @@ def identify_run(
             )
         )
     grip = grip_stiffness(signals, window, cycles)
-    features = material_features(fingers, grip)
+    closure = grasp_closure(signals, window, cycles)
+    features = material_features(fingers, grip, closure)
     material = _material(signals, features, material_map, notes)
-    return Identification(signals.run_path, model, hand, fingers, material, notes, grip)
+    return Identification(signals.run_path, model, hand, fingers, material, notes, grip, closure)
 
 
 def material_features(
-    fingers: list[FingerResult], grip: tuple[float, float]
+    fingers: list[FingerResult], grip: tuple[float, float], closure: tuple[float, float]
 ) -> dict[str, tuple[float, float]]:
-    """The stiffnesses the material mapping reads (twin.identify.material.FEATURES), each with its
-    own 1-sigma."""
+    """The values the material mapping reads (twin.identify.material.FEATURES), each with its own
+    1-sigma."""
     thumb = fingers[THUMB]
     kv = (
         thumb.fit
@@ -255,6 +279,7 @@ def material_features(
         "thumb_secant_n_m": (thumb.secant_n_m, thumb.secant_sigma_n_m),
         "thumb_tangent_n_m": (kv.params["k_n_m"], kv.sigma["k_n_m"]),
         "grip_nm_per_kcount": grip,
+        "grasp_closure_kcounts": closure,
     }
 
 

@@ -9,7 +9,12 @@ import pytest
 from tests.twin.identify.conftest import SPHERE_YOUNG_PA
 from twin.cli import main
 from twin.identify.hand_dynamics import identify_hand
-from twin.identify.identify import compression_window, grip_stiffness, identify_run
+from twin.identify.identify import (
+    CLOSURE_PLACEMENT_SIGMA_KCOUNTS,
+    compression_window,
+    grip_stiffness,
+    identify_run,
+)
 from twin.identify.signals import MissingStreamError, load_signals
 from twin.recording.reader import Run
 from twin.viz.rerun_log import read_rrd_scalars
@@ -37,6 +42,19 @@ def test_the_grip_stiffness_alone_recovers_the_modulus(ident):
     assert abs(grip["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10
     k, sigma = ident.grip
     assert k > 0 and 0 < sigma < 0.05 * k  # steady from cycle to cycle
+
+
+def test_the_grasp_closure_alone_recovers_the_modulus(ident, sphere_run):
+    """The encoders alone, through how far the hand closes at the grasp torque, map to E as well; the
+    closure is the window's mean summed drive, steady to a few counts from cycle to cycle."""
+    closure = next(f for f in ident.material["features"] if f["feature"] == "grasp_closure_kcounts")
+    assert closure["used"] and not closure["extrapolated"] and not closure["ambiguous"]
+    assert abs(closure["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10
+    signals = load_signals(sphere_run)
+    window, _ = compression_window(signals)
+    value, sigma = ident.closure
+    assert value == pytest.approx(signals.drive_counts[window].sum(axis=1).mean() / 1e3)
+    assert sigma == pytest.approx(CLOSURE_PLACEMENT_SIGMA_KCOUNTS, rel=0.05)  # cycles agree far better
 
 
 def test_grip_stiffness_is_the_slope_of_summed_torque_on_summed_drive(sphere_run):

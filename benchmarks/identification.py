@@ -185,8 +185,9 @@ def to_markdown(results: dict) -> str:
     lines = [
         "## Identification against the twin's truth (sphere, unseen moduli, sensor noise on)",
         "",
-        "`twin identify` (Kelvin-Voigt per finger; the grip stiffness from the hand's gauges and encoders "
-        "and the thumb's secant and tangent pad stiffness, combined through the stored mapping) on "
+        "`twin identify` (Kelvin-Voigt per finger; the grasp closure from the encoders, the grip stiffness "
+        "from the hand's gauges and encoders and the thumb's secant and tangent pad stiffness, combined "
+        "through the stored mapping) on "
         f"{len(acc)} runs of {DURATION_S:g} s at moduli the mapping has not seen, "
         f"{sum(r['group'] == 'soft' for r in acc)} of them at the soft end "
         f"({SOFT_END_PA[0] / 1e3:.0f}-{SOFT_END_PA[1] / 1e3:.0f} kPa at 67.5 and 70 mm, "
@@ -209,7 +210,8 @@ def to_markdown(results: dict) -> str:
         *(
             [
                 f"Not in those figures: {len(between)} runs between two mapping sizes "
-                f"({between[0]['size_mm']:g} mm), where the mapping interpolates linearly in size: "
+                f"({between[0]['size_mm']:g} mm), where the mapping interpolates linearly in size "
+                "at fixed E: "
                 f"max |E error| {100 * np.max(np.abs([r['error'] for r in between])):.1f} %.",
                 "",
             ]

@@ -153,14 +153,20 @@ def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: in
 
 
 def grasp_closure(signals: FingerSignals, window: NDArray[np.bool_], cycles: int) -> tuple[float, float]:
-    """How far the hand closes to hold the object: the three fingers' summed drive counts over whole
-    cycles, in 1000 counts, with a 1-sigma from the cycles' spread and the object's placement
-    (CLOSURE_PLACEMENT_SIGMA_KCOUNTS).
+    """How far the hand closes to hold the object at the grasp torque: the three fingers' summed drive
+    counts over whole cycles, less the compression's commanded mean (3 x its offset: the sine averages
+    out over whole cycles), in 1000 counts; with a 1-sigma from the cycles' spread and the object's
+    placement (CLOSURE_PLACEMENT_SIGMA_KCOUNTS). NaN where the run does not record its offset.
 
-    The grasp torque is the procedure's, so this is the indentation that torque makes, measured from
-    the object's undeformed size rather than from a detected first contact; it falls steadily with E
-    where the stiffnesses change regime (fingers folding over a soft sphere)."""
-    drive = signals.drive_counts.sum(axis=1) / 1e3
+    The balance holds every finger at the procedure's grasp torque, so this is the indentation that
+    torque makes, measured from the object's undeformed size rather than from a detected first
+    contact; it falls steadily with E where the stiffnesses change regime (fingers folding over a
+    soft sphere). Less the offset, it does not move with the compression profile."""
+    profile = signals.metadata.get("experiment", {}).get("profile", {})
+    offset = profile.get("offset_counts")
+    if offset is None:
+        return math.nan, math.nan
+    drive = (signals.drive_counts.sum(axis=1) - 3 * float(offset)) / 1e3
     per_cycle = np.array([drive[i].mean() for i in np.array_split(np.flatnonzero(window), cycles)])
     spread = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else 0.0
     return float(drive[window].mean()), math.hypot(spread, CLOSURE_PLACEMENT_SIGMA_KCOUNTS)
@@ -259,6 +265,8 @@ def identify_run(
         )
     grip = grip_stiffness(signals, window, cycles)
     closure = grasp_closure(signals, window, cycles)
+    if not math.isfinite(closure[0]):
+        notes.append("the run does not record its compression offset: the grasp closure is left out")
     features = material_features(fingers, grip, closure)
     material = _material(signals, features, material_map, notes)
     return Identification(signals.run_path, model, hand, fingers, material, notes, grip, closure)
@@ -304,6 +312,12 @@ def _material(
         notes.append(f"no modulus estimate: {exc}")
         return None
     out = estimate.to_json()
+    if signals.metadata.get("backend") != "sim":
+        notes.append(
+            "the grasp closure takes the object as resting on the palm's centre, at the size given, with "
+            "the hand homed (3 mm off-centre moves it as much as a 5-9 % softer foam): "
+            "docs/identification.md"
+        )
     if signals.metadata.get("backend") == "sim" and obj.get("young_pa"):
         out["twin_young_pa"] = obj["young_pa"]  # the twin knows its material: report the error
         out["error"] = estimate.young_pa / obj["young_pa"] - 1.0

@@ -6,7 +6,8 @@ procedure over a grid of moduli and sizes per shape, with two or more noise seed
 (experiments/build_material_map.py), and stored with the package (material_map.json).
 
 Its features:
-- the grasp closure, the three fingers' summed drive counts over the cycles: how far the hand closes
+- the grasp closure, the three fingers' summed drive counts over the cycles less the compression's
+  offset: how far the hand closes
   to hold the object at the grasp torque, so the indentation measured from the object's undeformed
   size rather than from a detected first contact. It falls steadily with E over the whole grid at
   every size, with no change of regime, and picks the branch where the others fold;
@@ -47,8 +48,9 @@ FEATURES = {
     "thumb_tangent_n_m": "F3 tangent contact stiffness: Kelvin-Voigt k over the cycles (N/m)",
     "grip_nm_per_kcount": "summed distal torques (gauges) against summed drive counts over the cycles "
     "(N*m per 1000 counts)",
-    "grasp_closure_kcounts": "summed drive counts of the three fingers over the cycles (1000 counts): how "
-    "far the hand closes on the object at the grasp torque; falls as E rises",
+    "grasp_closure_kcounts": "summed drive counts of the three fingers over the cycles, less the "
+    "compression's offset (1000 counts): how far the hand closes on the object at the grasp torque; "
+    "falls as E rises",
 }
 FALLING = frozenset({"grasp_closure_kcounts"})
 """Features that fall as E rises: their coordinate is minus the value (the others' is ln k)."""

@@ -3,6 +3,7 @@ series as a Rerun recording that the viewer merges with the run's own (same reco
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import multiprocessing
@@ -126,13 +127,18 @@ class FigureProcess:
         return self
 
     def draw(self, series: dict, path: Path) -> None:
-        self._conn.send((series, str(path)))
+        self._figure = (series, Path(path))
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):  # gone: wait() draws here
+            self._conn.send((series, str(path)))
 
     def wait(self) -> None:
         try:
             error = self._conn.recv()
         except EOFError:
-            raise RuntimeError("the figure process died before writing the figure") from None
+            # The worker died: a script without an `if __name__ == "__main__":` guard, whose
+            # re-import in the spawned process cannot start processes, or a killed worker. Draw here.
+            draw_figure(*self._figure)
+            return
         if error is not None:
             raise RuntimeError(f"the figure could not be drawn: {error}")
 

@@ -46,14 +46,16 @@ def test_the_grip_stiffness_alone_recovers_the_modulus(ident):
 
 def test_the_grasp_closure_alone_recovers_the_modulus(ident, sphere_run):
     """The encoders alone, through how far the hand closes at the grasp torque, map to E as well; the
-    closure is the window's mean summed drive, steady to a few counts from cycle to cycle."""
+    closure is the window's mean summed drive less the compression's offset on each finger, steady to
+    a few counts from cycle to cycle."""
     closure = next(f for f in ident.material["features"] if f["feature"] == "grasp_closure_kcounts")
     assert closure["used"] and not closure["extrapolated"] and not closure["ambiguous"]
     assert abs(closure["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10
     signals = load_signals(sphere_run)
     window, _ = compression_window(signals)
     value, sigma = ident.closure
-    assert value == pytest.approx(signals.drive_counts[window].sum(axis=1).mean() / 1e3)
+    offset = signals.metadata["experiment"]["profile"]["offset_counts"]
+    assert value == pytest.approx((signals.drive_counts[window].sum(axis=1).mean() - 3 * offset) / 1e3)
     assert sigma == pytest.approx(CLOSURE_PLACEMENT_SIGMA_KCOUNTS, rel=0.05)  # cycles agree far better
 
 
@@ -165,3 +167,24 @@ def test_a_run_that_does_not_record_its_object_takes_shape_and_size_from_the_res
     told = identify_run(hw_like, shape="sphere", size_m=(0.07, 0.07, 0.07))
     assert told.material["young_pa"] == pytest.approx(identify_run(sphere_run).material["young_pa"])
     assert "twin_young_pa" not in told.material  # a hardware run has no truth to compare with
+    assert any("resting on the palm's centre" in n for n in told.notes)  # what the closure takes on trust
+    assert not any("palm's centre" in n for n in identify_run(sphere_run).notes)  # the twin centres it
+    del info["metadata"]["experiment"]["profile"]["offset_counts"]
+    (hw_like / "run.json").write_text(json.dumps(info))
+    unknown = identify_run(hw_like, shape="sphere", size_m=(0.07, 0.07, 0.07))
+    assert any("compression offset" in n for n in unknown.notes)
+    assert "grasp_closure_kcounts" not in {f["feature"] for f in unknown.material["features"]}
+
+
+def test_the_figure_is_drawn_even_when_its_worker_process_dies(ident, tmp_path):
+    """`twin identify` draws in a spawned worker; where that worker cannot run (a script without a
+    __main__ guard) or dies, the caller draws the same figure itself."""
+    from twin.identify.report import FigureProcess, figure_series
+
+    path = tmp_path / "identify.png"
+    with FigureProcess() as worker:
+        worker._process.kill()
+        worker._process.join(5)
+        worker.draw(figure_series(ident), path)
+        worker.wait()
+    assert path.stat().st_size > 10_000 and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -35,8 +35,9 @@ THUMB = 2
 """F3, the finger whose secant stiffness the material mapping uses (twin.identify.material)."""
 CLOSURE_PLACEMENT_SIGMA_KCOUNTS = 0.1
 """The grasp closure's 1-sigma for where the object sits on the palm, which the twin always centres: a
-70 mm, 16 kPa sphere placed 3 mm off the palm's centre along the thumb's line of action closed 0.14 and
-0.23 thousand counts further (0.03 across it), so 0.1 stands for about 1.5 mm of placement."""
+70 mm, 16 kPa sphere placed 3 mm off the palm's centre towards F1 or F2 (the hand frame's x) closed 0.14
+and 0.23 thousand counts further (0.03 for 3 mm towards or away from the thumb, y), so 0.1 stands for
+about 1.5 mm of placement."""
 BASELINE_S = 0.3
 """Without a free-motion run, the gauge offset is the mean torque over the run's first 0.3 s (open hand)."""
 

@@ -69,7 +69,8 @@ FOLD_MARGIN_SIGMAS = 3.0
 """A knot outside a curve's valid range marks as folded the stiffnesses within max(3 sigma of its own
 seeds, 15 %) of it: between knots and from run to run a regime is only sampled there. The 65 mm
 sphere's folded-finger grip read 0.79-0.83 over six seeds at 8 kPa, and 0.85 in an unseen run at
-11.5 kPa, which the unmargined fold missed, so that run's grip passed as clear at 144 kPa."""
+11.5 kPa, which the unmargined fold missed, so that run's grip passed as clear at 144 kPa. On the
+closure's coordinate (thousands of counts) the same margins apply; its curves have no fold."""
 
 
 class MappingError(TwinError, ValueError):
@@ -344,7 +345,9 @@ def _why_left_out(part: dict, log_e: float) -> str:
 
 
 def _consistent(inside: list[dict]) -> list[dict]:
-    """With every in-range feature ambiguous and no referee, the ones no other in-range feature refutes.
+    """The features that hold together: the most refuted one left out, one at a time, until none refutes
+    another (used on the clear features, on every in-range one when nothing referees, and on those
+    used once the ambiguous ones have joined).
 
     A folded grip on a soft 70 mm sphere reads what its valid branch puts at twice the modulus; that
     modulus lies inside the thumb's valid ranges, where the thumb's pad would read it too, and does
@@ -353,14 +356,14 @@ def _consistent(inside: list[dict]) -> list[dict]:
 
     The feature most refuted goes first, then the others are judged again without it: between sizes the
     thumb's secant read 20-45 % soft while three features agreed, and refuted each of them as they
-    refuted it. Where the most refuted are several, every refuted one goes (empty when all are)."""
+    refuted it. Where several are refuted by equally many, nothing picks one out: all of them stay,
+    and the Birge ratio widens the interval (a 70 mm, 249 kPa sphere's grip and secant refuted each
+    other; leaving both out put the estimate on the tangent and the closure, -12 %)."""
     kept = list(inside)
     while True:
         refuted = [sum(_contradicts(o, p) for o in kept if o is not p) for p in kept]
         worst = max(refuted, default=0)
-        if worst == 0:
-            return kept
-        if refuted.count(worst) > 1:
+        if worst == 0 or refuted.count(worst) > 1:
             return kept
         kept.pop(refuted.index(worst))
 
@@ -369,7 +372,7 @@ def _between(a: Curve, b: Curve, size_m: float) -> Curve | None:
     """The curve at a size between a's and b's, linear in size at fixed E, over the moduli both are
     valid over (None: fewer than two knots there). At fixed E rather than at fixed stiffness: the
     grasp closure at a fixed E moves steadily with size, while the moduli it reads at a fixed value
-    do not (fixed stiffness put 66-69 mm spheres' closure 5-20 % stiff)."""
+    do not (fixed stiffness put 66-69 mm spheres' closure up to 25 % stiff)."""
     w = (size_m - a.size_m) / (b.size_m - a.size_m)
     lo, hi = max(a.knots_log_e[0], b.knots_log_e[0]), min(a.knots_log_e[-1], b.knots_log_e[-1])
     log_e = np.unique(np.concatenate([a.knots_log_e, b.knots_log_e]))

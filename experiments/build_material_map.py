@@ -38,7 +38,7 @@ MAPPED_RANGE_PA = (1e4, 3e5)
 YOUNG_RANGE_PA = (8e3, 3.6e5)
 """A little wider than MAPPED_RANGE_PA, so its ends are not extrapolated."""
 GRID_POINTS = (16, 24)
-"""The stored mapping's grids (--points for 60/75/80 mm and for 65/67.5/70 mm)."""
+"""The stored mapping's grids (--points for 60, 62.5, 72.5, 75, 77.5 and 80 mm, and for 65-70 mm)."""
 DURATION_S = 14.0
 """Close and balance take ~3.5 s; the rest is 5 whole compression cycles at 0.5 Hz."""
 SOFT_BELOW_PA = 3e4

@@ -313,7 +313,7 @@ def _material(
         notes.append(f"no modulus estimate: {exc}")
         return None
     out = estimate.to_json()
-    if signals.metadata.get("backend") != "sim":
+    if signals.metadata.get("backend") != "sim" and math.isfinite(features["grasp_closure_kcounts"][0]):
         notes.append(
             "the grasp closure takes the object as resting on the palm's centre, at the size given, with "
             "the hand homed (3 mm off-centre moves it as much as a 5-9 % softer foam): "

@@ -465,12 +465,12 @@ class MaterialMap:
                 f"{sizes[-1] * 1e3:.0f} mm, positive stiffness needed)"
             )
         inside = [p for p in parts if not p["extrapolated"]]
-        # Clear features that another clear one refutes are left out too, unless all are: on a 65 mm,
+        # Clear features that the other clear ones refute are left out too (_consistent): on a 65 mm,
         # 11.1 kPa sphere the thumb's tangent read 19.6 kPa, inside the secant's valid range, where the
         # secant would read it; the secant read 11.7 kPa, below the tangent's range (from 15.5 kPa),
         # where the tangent is erratic. Combined they said +21 %; the secant alone +5 %.
         unambiguous = [p for p in inside if not p["ambiguous"]]
-        clear = _consistent(unambiguous) or unambiguous
+        clear = _consistent(unambiguous)
         # An ambiguous feature has a second modulus outside its valid range. It joins when the
         # unambiguous features place the foam inside that range, i.e. on its valid branch: the clear
         # ones, or failing those the ones outside their own valid range (a thumb below its range says
@@ -481,7 +481,7 @@ class MaterialMap:
         # range read 17.5 kPa on a 13.1 kPa sphere whose in-range tangent said 13.2), so the in-range
         # features they admit carry the estimate.
         referees = clear or [p for p in parts if p["extrapolated"] and not p["ambiguous"]]
-        used = _consistent(inside) or inside or parts
+        used = _consistent(inside) or parts
         if referees:
             log_e, _ = _combine(referees)
             joined = [
@@ -491,7 +491,7 @@ class MaterialMap:
             # The joined features, now on their valid branch, are witnesses too: between sizes the
             # thumb's secant and the closure, the only clear ones, refuted each other, and the grip and
             # tangent sided with the closure.
-            used = _consistent(used) or used
+            used = _consistent(used)
         log_e, sigma = _combine(used)
         low, high = log_e - Z95 * sigma, log_e + Z95 * sigma
         unsettled = not referees and all(p["ambiguous"] for p in used)

@@ -13,8 +13,12 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from twin.interface.errors import ConfigError, TwinError
+
+if TYPE_CHECKING:
+    from twin.shape.dataset import ShapeData
 
 EXIT_USAGE = 2
 
@@ -162,20 +166,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--object", required=True, help="the object whose network to train")
     p.add_argument(
         "--target",
-        choices=("largest", "hull", "surface"),
-        default="largest",
-        help="largest: the largest visible piece's contour (the paper's); hull: the hull of all visible "
-        "pieces; surface: the fused 3-D surface's heights (a dataset swept with --surface)",
+        choices=("hull", "largest", "surface"),
+        default="hull",
+        help="hull (default): the hull of all visible pieces of the object; largest: the largest visible "
+        "piece's outline (the paper's, which switches piece when the fingers cut the object into pieces "
+        "of similar size); surface: the fused 3-D surface's heights (a dataset swept with --surface)",
     )
     p.add_argument(
         "--out",
         type=Path,
         metavar="DIR",
-        help="where the model goes (default DATASET/models/OBJECT, or OBJECT-TARGET for other targets)",
+        help="where the model goes (default DATASET/models/OBJECT for the hull, OBJECT-TARGET otherwise)",
     )
     p.add_argument("--epochs", type=int, default=3000)
     p.add_argument(
-        "--validation", type=float, default=0.25, metavar="F", help="fraction of trajectories held out"
+        "--folds",
+        type=int,
+        metavar="K",
+        help="contours: score by K-fold cross-validation over trajectories, every trajectory held out "
+        "once (the default: K = 4, or one fold per trajectory where there are fewer); the model kept is "
+        "trained on all of them",
+    )
+    p.add_argument(
+        "--validation",
+        type=float,
+        metavar="F",
+        help="score on one held-out fraction F of the trajectories instead (3-D variant: 0.25 by default)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
@@ -524,53 +540,123 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """`twin train`: the network and its baselines on held-out trajectories."""
-    from twin.shape.dataset import load_dataset
-    from twin.shape.train import train
+    from twin.shape.dataset import DEFAULT_TARGET, load_dataset
+    from twin.shape.train import FOLDS, train
 
-    if not 0 < args.validation < 1 or args.epochs < 1:
-        raise ConfigError("--validation must be in (0, 1) and --epochs >= 1")
+    if args.epochs < 1:
+        raise ConfigError("--epochs must be >= 1")
+    if args.validation is not None and not 0 < args.validation < 1:
+        raise ConfigError(f"--validation must be in (0, 1), got {args.validation}")
+    if args.folds is not None and args.validation is not None:
+        raise ConfigError("--folds and --validation: choose one way to hold trajectories out")
     metadata = {
         "object": args.object,
         "target": args.target,
         "dataset": str(args.dataset),
         "inputs": ["p1", "p2", "p3", "T1", "T2", "T3"],
     }
-    name = args.object if args.target == "largest" else f"{args.object}-{args.target}"
+    name = args.object if args.target == DEFAULT_TARGET else f"{args.object}-{args.target}"
+    out_dir = args.out or args.dataset / "models" / name
     if args.target == "surface":
-        return _train_surface(args, metadata, args.out or args.dataset / "models" / name)
+        if args.folds is not None:
+            raise ConfigError("--folds: the 3-D variant is scored on one held-out split (--validation F)")
+        return _train_surface(args, metadata, out_dir)
     data = load_dataset(args.dataset, args.object, args.target)
+    if args.validation is None:  # by default 4 folds, or one per trajectory where there are fewer
+        folds = args.folds or min(FOLDS, len(set(data.trajectory.tolist())))
+        return _cross_validate(args, data, metadata, out_dir, folds)
     result = train(
         data, validation_fraction=args.validation, seed=args.seed, epochs=args.epochs, metadata=metadata
     )
-    out = result.model.save(args.out or args.dataset / "models" / name)
+    out = result.model.save(out_dir)
     report = {
         "model": str(out),
         "train_samples": result.train_samples,
         "validation_samples": result.validation_samples,
         "validation_trajectories": result.validation_trajectories,
         "wall_s": result.wall_s,
-        "held_out": [
-            {
-                "predictor": e.name,
-                "error_px": e.error_px,
-                "error_mm": e.error_mm,
-                "error_px_vs_smoothed": e.error_px_smoothed,
-            }
-            for e in result.evaluations
-        ],
+        "held_out": _held_out_rows(result.evaluations),
     }
     (out / "evaluation.json").write_text(json.dumps(report, indent=1))
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
     print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
-    for e in result.evaluations:
+    _print_evaluations(result.evaluations)
+    print(f"wrote {out}")
+    return 0
+
+
+def _cross_validate(
+    args: argparse.Namespace, data: ShapeData, metadata: dict, out_dir: Path, folds: int
+) -> int:
+    """`twin train` by K-fold cross-validation: every trajectory held out once; the model kept is
+    trained on all of them."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from twin.shape.train import cross_validate, fold_groups
+
+    fold_groups(data, folds, args.seed)  # a bad --folds fails here, in one line, before the bar
+    with Progress(console=Console(stderr=True), transient=True, disable=args.json) as bar:
+        task = bar.add_task(f"networks ({folds} folds, then all trajectories)", total=folds + 1)
+        result = cross_validate(
+            data,
+            folds=folds,
+            seed=args.seed,
+            epochs=args.epochs,
+            metadata=metadata,
+            progress=lambda done, _total: bar.update(task, completed=done),
+        )
+    out = result.model.save(out_dir)
+    network = next(iter(result.fold_errors_px))
+    report = {
+        "model": str(out),
+        "samples": result.samples,
+        "folds": result.folds,
+        "wall_s": result.wall_s,
+        "held_out": _held_out_rows(result.evaluations),
+        "fold_errors_px": result.fold_errors_px,
+        "trajectory_errors_px": {str(k): v for k, v in result.trajectory_errors_px.items()},
+    }
+    (out / "evaluation.json").write_text(json.dumps(report, indent=1))
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return 0
+    worst = max(result.trajectory_errors_px, key=result.trajectory_errors_px.get)
+    print(
+        f"{result.samples} samples, {len(result.trajectory_errors_px)} trajectories in {folds} folds: "
+        "each trajectory held out once"
+    )
+    _print_evaluations(result.evaluations)
+    folds_px = ", ".join(f"{e:.2f}" for e in result.fold_errors_px[network])
+    print(
+        f"  network per fold: {folds_px} px; worst trajectory {worst}: "
+        f"{result.trajectory_errors_px[worst]:.2f} px"
+    )
+    print(f"wrote {out} (trained on every trajectory)")
+    return 0
+
+
+def _held_out_rows(evaluations: list) -> list[dict]:
+    """Each predictor's held-out errors, as evaluation.json keeps them."""
+    return [
+        {
+            "predictor": e.name,
+            "error_px": e.error_px,
+            "error_mm": e.error_mm,
+            "error_px_vs_smoothed": e.error_px_smoothed,
+        }
+        for e in evaluations
+    ]
+
+
+def _print_evaluations(evaluations: list) -> None:
+    for e in evaluations:
         print(
             f"  {e.name:28s} {e.error_px:6.2f} px  {e.error_mm:6.2f} mm  "
             f"({e.error_px_smoothed:.2f} px vs smoothed contours)"
         )
-    print(f"wrote {out}")
-    return 0
 
 
 def _train_surface(args: argparse.Namespace, metadata: dict, out_dir: Path) -> int:
@@ -580,7 +666,11 @@ def _train_surface(args: argparse.Namespace, metadata: dict, out_dir: Path) -> i
 
     data = load_surface_dataset(args.dataset, args.object)
     result = train_surface(
-        data, validation_fraction=args.validation, seed=args.seed, epochs=args.epochs, metadata=metadata
+        data,
+        validation_fraction=0.25 if args.validation is None else args.validation,
+        seed=args.seed,
+        epochs=args.epochs,
+        metadata=metadata,
     )
     out = result.model.save(out_dir)
     report = {

@@ -176,3 +176,28 @@ def test_a_surface_sweep_keeps_heights_near_the_true_surface_and_trains_the_3d_v
     assert main(["train", str(contours), "--object", "sphere", "--target", "surface"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no 'surface_mm' column" in err
+
+
+def test_train_cross_validates_by_trajectory_and_keeps_a_hull_model_trained_on_all(local_dataset, capsys):
+    out, trajectories, _ = local_dataset
+    capsys.readouterr()
+    assert main(["train", str(out), "--object", "sphere", "--epochs", "50"]) == 0
+    printed = capsys.readouterr().out
+    assert "2 trajectories in 2 folds" in printed  # fewer trajectories than 4: one fold each
+    model_dir = out / "models" / "sphere"  # the hull is the default target
+    report = json.loads((model_dir / "evaluation.json").read_text())
+    assert sorted(t for fold in report["folds"] for t in fold) == [t.index for t in trajectories]
+    assert set(report["trajectory_errors_px"]) == {str(t.index) for t in trajectories}
+    assert [r["predictor"].split()[0] for r in report["held_out"]] == ["network", "linear", "nearest"]
+    assert all(np.isfinite(r["error_px"]) and r["error_px"] > 0 for r in report["held_out"])
+    meta = json.loads((model_dir / "model.json").read_text())
+    assert meta["target"] == "hull" and meta["cross_validation"]["folds"] == report["folds"]
+    for argv, message in (
+        (["--folds", "1"], "folds must be 2 to 2"),
+        (["--folds", "2", "--validation", "0.5"], "choose one way"),
+        (["--validation", "1.5"], "--validation must be in (0, 1)"),
+        (["--target", "surface", "--folds", "2"], "one held-out split"),
+    ):
+        assert main(["train", str(out), "--object", "sphere", "--epochs", "5", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err

@@ -22,6 +22,10 @@ from twin.shape.surface import SurfaceGrid
 INPUTS = ("p1_counts", "p2_counts", "p3_counts", "T1_nm", "T2_nm", "T3_nm")
 CONTOUR_TARGETS = {"largest": ("contour_px", "contour_mm"), "hull": ("hull_px", "hull_mm")}
 TARGETS = (*CONTOUR_TARGETS, "surface")
+DEFAULT_TARGET = "hull"
+"""The fingers cut the object into pieces in the top-down view and the largest piece can switch from
+frame to frame (docs/shape_network.md); the hull of all pieces is one closed curve around everything
+visible, and moves continuously."""
 
 
 @dataclass(frozen=True)
@@ -64,7 +68,7 @@ class SurfaceData:
         )
 
 
-def load_dataset(directory: Path | str, object_name: str, target: str = "largest") -> ShapeData:
+def load_dataset(directory: Path | str, object_name: str, target: str = DEFAULT_TARGET) -> ShapeData:
     """Every trajectory of `object_name` in a sweep directory, with the contour `target` ("largest" or
     "hull"); ConfigError names what is wrong."""
     if target not in CONTOUR_TARGETS:

@@ -4,9 +4,10 @@ save/load, trajectory-wise splits, and a network that beats both baselines on a 
 import numpy as np
 import pytest
 
+from twin.interface.errors import ConfigError
 from twin.shape.dataset import ShapeData, split_by_trajectory
 from twin.shape.model import ShapeMLP, ShapeModel
-from twin.shape.train import train
+from twin.shape.train import cross_validate, train
 
 
 def _synthetic(trajectories=12, per=120, points=8, seed=0) -> ShapeData:
@@ -62,3 +63,30 @@ def test_the_network_learns_a_nonlinear_contour_and_beats_the_baselines():
     assert errors["network"] < 0.5  # px, on trajectories it never saw
     mm = {e.name.split()[0]: e.error_mm for e in result.evaluations}
     assert mm["network"] == pytest.approx(0.5 * errors["network"], rel=1e-6)  # the data's 0.5 mm/px
+
+
+def test_cross_validation_scores_every_trajectory_on_networks_that_never_saw_it():
+    data = _synthetic()
+    # trajectory 5 is unlike the others (its torques 0.3 N*m higher, its contour 4 px to the right):
+    # a network that never saw it cannot know the shift; one trained on it can
+    on = data.trajectory == 5
+    inputs, contour = data.inputs.copy(), data.contour_px.copy()
+    inputs[on, 3:] += 0.3
+    contour[on, :, 0] += 4.0
+    data = ShapeData(inputs, contour, 0.5 * contour, data.trajectory)
+    cv = cross_validate(data, folds=4, epochs=1500, seed=0)
+    ids = sorted(int(t) for t in np.unique(data.trajectory))
+    assert sorted(t for fold in cv.folds for t in fold) == ids and len(cv.folds) == 4
+    assert sorted(cv.trajectory_errors_px) == ids
+    assert [e.name.split()[0] for e in cv.evaluations] == ["network", "linear", "nearest"]
+    # pooled over every held-out sample: the folds' errors weighted by their samples
+    sizes = [np.isin(data.trajectory, fold).sum() for fold in cv.folds]
+    network = next(iter(cv.fold_errors_px.values()))
+    assert cv.evaluations[0].error_px == pytest.approx(np.average(network, weights=sizes), rel=1e-9)
+    assert cv.trajectory_errors_px[5] > 3.0  # px: scored by a network that never saw it
+    assert max(v for k, v in cv.trajectory_errors_px.items() if k != 5) < 0.2
+    kept = np.linalg.norm(cv.model.predict(inputs[on]) - contour[on], axis=2).mean()
+    assert kept < 0.2  # the kept model was trained on every trajectory, 5 included
+    assert cv.model.metadata["cross_validation"]["folds"] == cv.folds
+    with pytest.raises(ConfigError, match="folds must be 2 to 12"):
+        cross_validate(data, folds=13, epochs=5)

@@ -49,10 +49,14 @@ procedure's own limit (offset + amplitude)."""
 FREQUENCY_HZ = (0.2, 0.8)
 RAMP_S = 1.0
 """The waves fade in over the first second of the compression, so every finger starts at its grasp."""
-SURFACE_ERODE_PX = 4
+SURFACE_ERODE_PX = 6
 """The surface sweep's stereo pipeline shrinks the object's mask by this much: block matching smears
-the fingers' disparity this far into the object's edge (on a squeezed block, the heights' mean error
-against the true top: 12 mm with no erosion, 5.8 mm with 2 px, 0.4 mm with 4 px)."""
+the fingers' disparity this far into the object's edge, and the smeared points sit at the finger's
+depth, ~35 mm under the block's top. On a squeezed block, the heights' mean error against the true
+top was 12 mm with no erosion, 5.8 mm with 2 px, 0.4 mm with 4 px; since the grasp changed (issue 6:
+the fingers sit nearer the top rim), 2.0 / 0.28 / 0.20 mm with 4 / 5 / 6 px on block trajectory 6
+(49 / 6 / 0 of ~900 (sample, cell) pairs more than 5 mm off; trajectory 8 alike), at the cost of 17 ->
+12 cells seen per frame."""
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,7 @@ def run(quick: bool = False) -> dict:
     """Measure the contours, sweep, train, evaluate, time."""
     from twin.shape.dataset import load_dataset, load_surface_dataset
     from twin.shape.surface_train import train_surface
-    from twin.shape.train import FOLDS, cross_validate
+    from twin.shape.train import FOLDS, NETWORK, cross_validate
 
     measurement = []
     measurement_s = 7.0 if quick else MEASUREMENT_S
@@ -156,7 +156,6 @@ def run(quick: bool = False) -> dict:
                 model = cv.model
                 walk = _walk_px(data)
                 worst = max(cv.trajectory_errors_px, key=cv.trajectory_errors_px.get)
-                network = next(iter(cv.fold_errors_px))
                 per_object.append(
                     {
                         "object": obj,
@@ -165,7 +164,7 @@ def run(quick: bool = False) -> dict:
                         "samples": len(data),
                         "motion_px": float(data.contour_px.std(axis=0).mean()),
                         "folds": cv.folds,
-                        "fold_errors_px": cv.fold_errors_px[network],
+                        "fold_errors_px": cv.fold_errors_px[NETWORK],
                         "worst_trajectory": worst,
                         "worst_px": cv.trajectory_errors_px[worst],
                         "worst_walk_px": walk[worst],

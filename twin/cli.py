@@ -595,7 +595,7 @@ def _cross_validate(
     from rich.console import Console
     from rich.progress import Progress
 
-    from twin.shape.train import cross_validate, fold_groups
+    from twin.shape.train import NETWORK, cross_validate, fold_groups
 
     fold_groups(data, folds, args.seed)  # a bad --folds fails here, in one line, before the bar
     with Progress(console=Console(stderr=True), transient=True, disable=args.json) as bar:
@@ -609,7 +609,6 @@ def _cross_validate(
             progress=lambda done, _total: bar.update(task, completed=done),
         )
     out = result.model.save(out_dir)
-    network = next(iter(result.fold_errors_px))
     report = {
         "model": str(out),
         "samples": result.samples,
@@ -629,7 +628,7 @@ def _cross_validate(
         "each trajectory held out once"
     )
     _print_evaluations(result.evaluations)
-    folds_px = ", ".join(f"{e:.2f}" for e in result.fold_errors_px[network])
+    folds_px = ", ".join(f"{e:.2f}" for e in result.fold_errors_px[NETWORK])
     print(
         f"  network per fold: {folds_px} px; worst trajectory {worst}: "
         f"{result.trajectory_errors_px[worst]:.2f} px"

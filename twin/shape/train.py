@@ -1,4 +1,6 @@
-"""Train the shape network offline, with two baselines beside it, on whole held-out trajectories.
+"""Train the shape network offline, with two baselines beside it, on whole held-out trajectories:
+one held-out fraction (`train`) or K-fold cross-validation over trajectories (`cross_validate`, what
+`twin train` does by default: every trajectory is scored once by predictors that never saw it).
 
 - network: the paper's 6-30-2n MLP (twin.shape.model), Adam on the mean squared error of the
   standardized contour, full batch (a sweep holds thousands of samples, not millions), cosine
@@ -33,6 +35,7 @@ EPOCHS = 3000
 LEARNING_RATE = 1e-2
 NEIGHBOURS = 5
 SMOOTHING_FRAMES = 5
+NETWORK = "network (6-30-2n)"
 FOLDS = 4
 """`cross_validate`'s default: each trajectory held out once, by a network trained on three quarters."""
 
@@ -170,7 +173,7 @@ def cross_validate(
         for name, p in preds.items():
             pooled.setdefault(name, []).append(p)
             fold_errors.setdefault(name, []).append(contour_errors(p, val_set)[0])
-        network = next(iter(preds.values()))
+        network = preds[NETWORK]
         for t in group:
             on = val_set.trajectory == t
             trajectory_errors[t] = float(np.linalg.norm(network[on] - val_set.contour_px[on], axis=2).mean())
@@ -255,7 +258,7 @@ def _fit_and_predict(
     if val_set is None:
         return model, {}
     return model, {
-        "network (6-30-2n)": model.predict(val_set.inputs),
+        NETWORK: model.predict(val_set.inputs),
         "linear regression": _linear(train_set, val_set),
         f"nearest neighbours (k={NEIGHBOURS})": _knn(train_set, val_set, x_mean, x_std),
     }

@@ -155,7 +155,7 @@ def cross_validate(
     """Split the trajectories into `folds` groups (shuffled by seed); for each, train the network and
     the baselines on the others and predict it; score the pooled predictions; then train the model to
     keep on every trajectory. Why: one random held-out quarter of a two-dozen-trajectory sweep is a
-    noisy score (on the twin's block, 0.66-1.06 px across three split seeds, set by whether the one
+    noisy score (on the twin's block, 0.66-1.06 px across three split seeds, set by whether a
     trajectory where the block walks in the grasp is in it); K folds score every trajectory."""
     started = time.perf_counter()
     groups = fold_groups(data, folds, seed)

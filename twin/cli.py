@@ -577,9 +577,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         "wall_s": result.wall_s,
         "held_out": _held_out_rows(result.evaluations),
     }
-    (out / "evaluation.json").write_text(json.dumps(report, indent=1))
-    if args.json:
-        print(json.dumps(report, indent=1))
+    if _write_report(out, report, args.json):
         return 0
     print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
     _print_evaluations(result.evaluations)
@@ -618,9 +616,7 @@ def _cross_validate(
         "fold_errors_px": result.fold_errors_px,
         "trajectory_errors_px": {str(k): v for k, v in result.trajectory_errors_px.items()},
     }
-    (out / "evaluation.json").write_text(json.dumps(report, indent=1))
-    if args.json:
-        print(json.dumps(report, indent=1))
+    if _write_report(out, report, args.json):
         return 0
     worst = max(result.trajectory_errors_px, key=result.trajectory_errors_px.get)
     print(
@@ -635,6 +631,15 @@ def _cross_validate(
     )
     print(f"wrote {out} (trained on every trajectory)")
     return 0
+
+
+def _write_report(model_dir: Path, report: object, as_json: bool) -> bool:
+    """evaluation.json beside the model; with --json also printed, and then nothing else is (True)."""
+    text = json.dumps(report, indent=1)
+    (model_dir / "evaluation.json").write_text(text)
+    if as_json:
+        print(text)
+    return as_json
 
 
 def _held_out_rows(evaluations: list) -> list[dict]:
@@ -686,9 +691,7 @@ def _train_surface(args: argparse.Namespace, metadata: dict, out_dir: Path) -> i
             for e in result.evaluations
         ],
     }
-    (out / "evaluation.json").write_text(json.dumps(_nan_to_null(report), indent=1))
-    if args.json:
-        print(json.dumps(_nan_to_null(report), indent=1))
+    if _write_report(out, _nan_to_null(report), args.json):
         return 0
     print(f"{result.train_samples} training samples; held out trajectories {result.validation_trajectories}")
     print(

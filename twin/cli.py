@@ -563,7 +563,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         return _train_surface(args, metadata, out_dir)
     data = load_dataset(args.dataset, args.object, args.target)
     if args.validation is None:  # by default 4 folds, or one per trajectory where there are fewer
-        folds = args.folds or min(FOLDS, len(set(data.trajectory.tolist())))
+        folds = min(FOLDS, len(set(data.trajectory.tolist()))) if args.folds is None else args.folds
         return _cross_validate(args, data, metadata, out_dir, folds)
     result = train(
         data, validation_fraction=args.validation, seed=args.seed, epochs=args.epochs, metadata=metadata

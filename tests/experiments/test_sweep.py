@@ -194,6 +194,7 @@ def test_train_cross_validates_by_trajectory_and_keeps_a_hull_model_trained_on_a
     assert meta["target"] == "hull" and meta["cross_validation"]["folds"] == report["folds"]
     for argv, message in (
         (["--folds", "1"], "folds must be 2 to 2"),
+        (["--folds", "0"], "folds must be 2 to 2"),
         (["--folds", "2", "--validation", "0.5"], "choose one way"),
         (["--validation", "1.5"], "--validation must be in (0, 1)"),
         (["--target", "surface", "--folds", "2"], "one held-out split"),

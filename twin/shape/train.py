@@ -159,26 +159,22 @@ def cross_validate(
     trajectory where the block walks in the grasp is in it); K folds score every trajectory."""
     started = time.perf_counter()
     groups = fold_groups(data, folds, seed)
-    pooled: dict[str, list[NDArray]] = {}
-    held_parts: list[ShapeData] = []
+    pooled: dict[str, NDArray] = {}  # each predictor's contours, every sample predicted held out
     fold_errors: dict[str, list[float]] = {}
-    trajectory_errors: dict[int, float] = {}
     for k, group in enumerate(groups):
         held = np.isin(data.trajectory, group)
         train_set, val_set = data.subset(~held), data.subset(held)
         _, preds = _fit_and_predict(train_set, val_set, seed + k, epochs, None, None)
         if progress is not None:
             progress(k + 1, folds + 1)
-        held_parts.append(val_set)
         for name, p in preds.items():
-            pooled.setdefault(name, []).append(p)
+            pooled.setdefault(name, np.empty_like(data.contour_px))[held] = p
             fold_errors.setdefault(name, []).append(contour_errors(p, val_set)[0])
-        network = preds[NETWORK]
-        for t in group:
-            on = val_set.trajectory == t
-            trajectory_errors[t] = float(np.linalg.norm(network[on] - val_set.contour_px[on], axis=2).mean())
-    held_all = ShapeData(*(np.concatenate([getattr(h, f) for h in held_parts]) for f in _FIELDS))
-    evaluations = [_evaluation(name, np.concatenate(ps), held_all) for name, ps in pooled.items()]
+    evaluations = [_evaluation(name, p, data) for name, p in pooled.items()]
+    sample_errors = np.linalg.norm(pooled[NETWORK] - data.contour_px, axis=2).mean(axis=1)
+    trajectory_errors = {
+        int(t): float(sample_errors[data.trajectory == t].mean()) for t in np.unique(data.trajectory)
+    }
     model, _ = _fit_and_predict(data, None, seed, epochs, None, metadata)
     if progress is not None:
         progress(folds + 1, folds + 1)
@@ -191,7 +187,7 @@ def cross_validate(
         evaluations=evaluations,
         folds=groups,
         fold_errors_px=fold_errors,
-        trajectory_errors_px=dict(sorted(trajectory_errors.items())),
+        trajectory_errors_px=trajectory_errors,
         samples=len(data),
         wall_s=time.perf_counter() - started,
     )
@@ -205,9 +201,6 @@ def fold_groups(data: ShapeData, folds: int, seed: int) -> list[list[int]]:
         raise ConfigError(f"folds must be 2 to {len(ids)} (one per trajectory at most), got {folds}")
     shuffled = np.random.default_rng(seed).permutation(ids)
     return [sorted(int(t) for t in g) for g in np.array_split(shuffled, folds)]
-
-
-_FIELDS = ("inputs", "contour_px", "contour_mm", "trajectory")
 
 
 def _fit_and_predict(

@@ -8,7 +8,9 @@ the threads and the clean-up are here once.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import re
 import select
 import socket
 import threading
@@ -33,32 +35,74 @@ class Fault:
     arg: float | None = None
 
 
-def parse_faults(spec: str | None, kinds: Mapping[str, str]) -> dict[int, Fault]:
-    """Parse `KIND@N[:ARG],...`; kinds maps each KIND to "none", "optional" or "required" (its ARG).
+@dataclass(frozen=True)
+class FaultArg:
+    """What a fault kind takes after `:`: nothing (need "none"), or a finite number in [low, high]
+    that may be left out ("optional") or not ("required"); `integer` asks for a whole number."""
 
-    ConfigError (one line) on anything malformed.
+    need: str = "none"
+    low: float = 0.0
+    high: float = 0.0
+    integer: bool = False
+    unit: str = ""
+
+    def describe(self) -> str:
+        """The accepted range in words, for the error message."""
+        kind = "an integer" if self.integer else "a number"
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{kind} in [{self.low:g}, {self.high:g}]{unit}"
+
+
+NO_ARG = FaultArg()
+MAX_FAULT_AT = 1_000_000_000
+"""The highest reply or frame number a fault may name (about a year of replies at 30 Hz)."""
+_AT = re.compile(r"[0-9]{1,10}")
+
+
+def parse_faults(
+    spec: str | None, kinds: Mapping[str, FaultArg], option: str = "--faults"
+) -> dict[int, Fault]:
+    """Parse `KIND@N[:ARG],...`: a known KIND, N in [1, MAX_FAULT_AT], ARG as kinds[KIND] allows.
+
+    Everything is checked here, before anything is served: ConfigError (one line naming `option`) on
+    anything malformed, out of range or not finite, and on two faults at the same N.
     """
     if not spec:
         return {}
     faults: dict[int, Fault] = {}
+    known = ", ".join(kinds)
     for item in spec.split(","):
         kind, _, rest = item.strip().partition("@")
-        at, _, arg = rest.partition(":")
-        if kind not in kinds or not at.isdigit() or int(at) < 1:
-            known = ", ".join(kinds)
-            raise ConfigError(f"--faults: bad item {item!r}: want KIND@N[:ARG], KIND one of {known}")
-        try:
-            value = float(arg) if arg else None
-        except ValueError:
-            raise ConfigError(f"--faults: bad argument in {item!r}") from None
-        if value is None and kinds[kind] == "required":
-            raise ConfigError(f"--faults: {kind} needs an argument ({kind}@N:VALUE)")
-        if value is not None and kinds[kind] == "none":
-            raise ConfigError(f"--faults: {item!r}: {kind} takes no argument")
-        if value is not None and value < 0:
-            raise ConfigError(f"--faults: {item!r}: the argument must be >= 0")
+        at, colon, arg = rest.partition(":")
+        if kind not in kinds or not _AT.fullmatch(at) or not 1 <= int(at) <= MAX_FAULT_AT:
+            raise ConfigError(
+                f"{option}: bad item {item!r}: want KIND@N[:ARG] with N in [1, {MAX_FAULT_AT}], "
+                f"KIND one of {known}"
+            )
+        allowed = kinds[kind]
+        value = _fault_arg(option, item, kind, allowed, arg if colon else None)
+        if int(at) in faults:
+            raise ConfigError(f"{option}: {item!r}: a fault is already planned at {at}")
         faults[int(at)] = Fault(kind, int(at), value)
     return faults
+
+
+def _fault_arg(option: str, item: str, kind: str, allowed: FaultArg, arg: str | None) -> float | None:
+    """The checked ARG of one item (None when it has none)."""
+    if arg is None:
+        if allowed.need == "required":
+            raise ConfigError(f"{option}: {item!r}: {kind} needs an argument ({kind}@N:VALUE)")
+        return None
+    if allowed.need == "none":
+        raise ConfigError(f"{option}: {item!r}: {kind} takes no argument")
+    try:
+        value = float(arg)
+    except ValueError:
+        value = math.nan
+    ok = math.isfinite(value) and allowed.low <= value <= allowed.high
+    if not ok or (allowed.integer and value != int(value)):
+        raise ConfigError(f"{option}: {item!r}: the argument of {kind} must be {allowed.describe()}")
+    return value
 
 
 class Link:
@@ -72,10 +116,10 @@ class Link:
         """For select()."""
         return self.sock.fileno() if self.sock is not None else self.fd
 
-    def read(self) -> bytes | None:
-        """Bytes waiting; b"" when the peer is gone; None when nothing was there after all."""
+    def read(self, size: int = 4096) -> bytes | None:
+        """Up to `size` bytes waiting; b"" when the peer is gone; None when nothing was there after all."""
         try:
-            return self.sock.recv(4096) if self.sock is not None else os.read(self.fd, 4096)
+            return self.sock.recv(size) if self.sock is not None else os.read(self.fd, size)
         except (BlockingIOError, InterruptedError):
             return None
         except OSError:
@@ -129,11 +173,23 @@ def close_fd(fd: int) -> None:
         os.close(fd)
 
 
+BUSY_REPLY = b"\n\rbusy: another client is connected to this emulator\n\r"
+"""What a second TCP client reads before its connection is closed (one client at a time, as a serial line)."""
+BUSY_GRACE_S = 1.0
+"""How long a newcomer waits for the present client's session to end (it may be leaving) before refusal."""
+
+
 class PortServer:
     """Serves `_session(link)` on a pty, a TCP port (one client at a time) or a socket pair.
 
     `_session` returns how the session ended: "closed" (the peer left), "stopped" (close() was
     called) or "vanished" (a fault took the port away: the pty or the listening socket closes too).
+    A session that raises instead ends as "failed": `failure` says why, `on_event` reports it and the
+    port closes, so that an emulator never looks alive while nobody answers.
+
+    On TCP a second client, while one is connected, reads `BUSY_REPLY` and is closed at once (a serial
+    port has one host); once the first has left, the next is served. On a pty one client exists by
+    nature (whoever opens the terminal).
     """
 
     thread_name = "emulator"
@@ -142,6 +198,9 @@ class PortServer:
         self.on_event = on_event or (lambda _msg: None)
         self.stop_event = threading.Event()
         self.address: str | None = None
+        self.failure: str | None = None
+        """Why a session failed (one line), None while every session has ended as it should."""
+        self._started = False
         self._threads: list[threading.Thread] = []
         self._closers: list[Callable[[], None]] = []
 
@@ -154,12 +213,28 @@ class PortServer:
     def _on_close(self) -> None:
         """Called after every port is closed."""
 
-    def _start(self, target: Callable[[], None]) -> None:
-        if not self._threads:
+    def failed(self) -> str | None:
+        """Why the emulator no longer serves (one line), or None while it does."""
+        return self.failure
+
+    def _start(self, target: Callable[[], None], name: str | None = None) -> threading.Thread:
+        if not self._started:
+            self._started = True
             self._on_first_start()
-        thread = threading.Thread(target=target, name=self.thread_name, daemon=True)
+        thread = threading.Thread(target=target, name=name or self.thread_name, daemon=True)
         thread.start()
+        self._threads = [t for t in self._threads if t.is_alive()]
         self._threads.append(thread)
+        return thread
+
+    def _guarded_session(self, link: Link) -> str:
+        """`_session`, with an unexpected exception recorded and reported as the outcome "failed"."""
+        try:
+            return self._session(link)
+        except Exception as exc:  # a bug or a broken twin: say so and close, never serve on half-dead
+            self.failure = f"{type(exc).__name__}: {exc}"
+            self.on_event(f"session failed, no longer serving: {self.failure}")
+            return "failed"
 
     def serve_pty(self) -> str:
         """Open a pseudo-terminal and answer on it; returns the device path to open.
@@ -179,7 +254,7 @@ class PortServer:
         self._closers.append(close_pty)
 
         def run() -> None:
-            outcome = self._session(link)
+            outcome = self._guarded_session(link)
             self.on_event(f"pty session ended: {outcome}")
             close_pty()
 
@@ -193,7 +268,16 @@ class PortServer:
         server.settimeout(0.1)
         self._closers.append(server.close)
 
+        def serve_client(conn: socket.socket) -> None:
+            link = Link(sock=conn)
+            outcome = self._guarded_session(link)
+            link.close()
+            self.on_event(f"client left: {outcome}")
+            if outcome in ("vanished", "failed"):
+                server.close()
+
         def run() -> None:
+            session: threading.Thread | None = None
             while not self.stop_event.is_set():
                 try:
                     conn, peer = server.accept()
@@ -202,18 +286,26 @@ class PortServer:
                 except OSError:
                     return
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                if session is not None:
+                    session.join(timeout=BUSY_GRACE_S)
+                if session is not None and session.is_alive():
+                    self._refuse(conn, f"{peer[0]}:{peer[1]}")
+                    continue
                 self.on_event(f"client {peer[0]}:{peer[1]} connected")
-                link = Link(sock=conn)
-                outcome = self._session(link)
-                link.close()
-                self.on_event(f"client left: {outcome}")
-                if outcome == "vanished":
-                    server.close()
-                    return
+                session = self._start(lambda conn=conn: serve_client(conn), f"{self.thread_name}-client")
 
-        self._start(run)
+        self._start(run, f"{self.thread_name}-accept")
         self.address = f"socket://{host}:{server.getsockname()[1]}"
         return self.address
+
+    def _refuse(self, conn: socket.socket, peer: str) -> None:
+        """A second client: one line saying why, then closed."""
+        self.on_event(f"client {peer} refused: another client is connected")
+        with contextlib.suppress(OSError):
+            conn.settimeout(0.5)
+            conn.sendall(BUSY_REPLY)
+            conn.shutdown(socket.SHUT_RDWR)
+        conn.close()
 
     def serve_socketpair(self) -> socket.socket:
         """An in-process connection (the emulators' URLs): returns the host's end."""
@@ -221,17 +313,19 @@ class PortServer:
         link = Link(sock=device_end)
 
         def run() -> None:
-            self._session(link)
+            self._guarded_session(link)
             link.close()
 
         self._start(run)
         return host_end
 
-    def close(self) -> None:
-        """Stop answering and release the ports."""
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop answering, wait for the sessions to end (they look at stop_event at least every 50 ms)
+        and release the ports."""
         self.stop_event.set()
-        for thread in self._threads:
-            thread.join(timeout=2.0)
+        deadline = time.monotonic() + timeout_s
+        for thread in list(self._threads):
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
         for closer in self._closers:
             closer()
         self._on_close()

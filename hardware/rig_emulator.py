@@ -18,6 +18,7 @@ import numpy as np
 from hardware.bh262.emulator import HandEmulator, make_hand_emulator
 from hardware.bh262.firmware import RealTimeTwin
 from hardware.cameras.emulator import CameraEmulator
+from hardware.pps.emulator import FaultPlan as TactileFaultPlan
 from hardware.pps.emulator import TactileEmulator
 from hardware.rig_config import rig_toml
 
@@ -49,14 +50,17 @@ class RigEmulator:
         on_event: Callable[[str], None] | None = None,
         cameras: bool = False,
     ) -> None:
-        """`cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame)."""
+        """`cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame).
+
+        Both fault specs are checked first (ConfigError, one line), before the twin is built."""
+        tactile_plan = TactileFaultPlan.parse(tactile_faults, option="--tactile-faults")
         self.hand: HandEmulator = make_hand_emulator(
             object_name, baud=baud, faults=faults, seed=seed, on_event=on_event, stereo=cameras
         )
         self.tactile = TactileEmulator(
             twin_tactile_source(self.hand.twin),
             rate_hz=self.hand.twin.backend.tactile.config.rate_hz,
-            faults=tactile_faults,
+            faults=tactile_plan,
             on_event=on_event,
         )
         self.cameras = CameraEmulator(self.hand.twin, seed=seed, on_event=on_event) if cameras else None
@@ -117,6 +121,11 @@ class RigEmulator:
         twin = self.hand.twin
         with twin.lock:
             return twin.backend.object_box(Rectifier(StereoCalibration.load(calibration_file)))
+
+    def failed(self) -> str | None:
+        """Why the hand or the pads no longer serve (one line), or None while both do."""
+        hand, tactile = self.hand.failed(), self.tactile.failed()
+        return f"hand: {hand}" if hand else (f"tactile: {tactile}" if tactile else None)
 
     def close(self) -> None:
         """Stop every emulator and the twin."""

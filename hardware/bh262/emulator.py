@@ -10,24 +10,39 @@ from __future__ import annotations
 import select
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 
 from hardware.bh262.firmware import Firmware, RealTimeTwin
 from hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
-from hardware.emulation import Fault, Link, PortServer, parse_faults
+from hardware.emulation import NO_ARG, Fault, FaultArg, Link, PortServer, parse_faults
 
+MAX_DELAY_S = 60.0
+"""The longest `late` delay a fault may ask for (the driver gives up on a reply long before)."""
+MAX_MUTE_S = 3600.0
+"""The longest timed `mute` (without a time it is for good)."""
 FAULTS = {
-    "garbage": "none",
-    "drop": "none",
-    "partial": "none",
-    "late": "required",
-    "err": "required",
-    "vanish": "none",
-    "mute": "optional",
+    "garbage": NO_ARG,
+    "drop": NO_ARG,
+    "partial": NO_ARG,
+    "late": FaultArg("required", 0.0, MAX_DELAY_S, unit="s"),
+    "err": FaultArg("required", 1, 65535, integer=True, unit="(the ERR code)"),
+    "vanish": NO_ARG,
+    "mute": FaultArg("optional", 0.0, MAX_MUTE_S, unit="s"),
 }
 DEFAULT_OPTIONS = WireOptions()
 GARBAGE = b"\x00\xfe\x13#?\x7f"
 """Line noise injected by the `garbage` fault: no '*' first, no prompt inside."""
+MAX_LINE_BYTES = 256
+"""The hand's command line buffer: a longer line is dropped whole as it comes (unechoed, costing no wire
+time) and its CR is answered `ERR 32`, so that a flood cannot hold the hand for its wire time."""
+MAX_INPUT_BYTES = 4096
+"""Bytes the hand holds unprocessed (e.g. sent during a motion); more wait in the link (the pty's or
+socket's buffer, as behind flow control) until the firmware takes them: nothing is lost at random."""
+POLL_S = 0.05
+"""How often a waiting session looks at its link: a departed host, a Ctrl-C, close()."""
+WRITE_TIMEOUT_S = 1.0
+"""A host that takes no byte for this long loses the rest of a reply (the hand never waits for it)."""
 
 
 class FaultPlan:
@@ -35,18 +50,18 @@ class FaultPlan:
 
     N counts the RealTime replies of a session (a TCP client's connection; on a pty, the emulator's
     life). garbage: noise before the reply; drop: no reply; partial: the first half only; late:S: the
-    reply S seconds late; err:N: `ERR N` instead of the block (the hand drops to Supervisory mode);
-    vanish: the port disappears; mute[:S]: nothing answered (bytes received are lost) for S seconds,
-    or for good without S.
+    reply S seconds late (0 to 60); err:N: `ERR N` instead of the block (N an integer, 1 to 65535; the
+    hand drops to Supervisory mode); vanish: the port disappears; mute[:S]: nothing answered (bytes
+    received are lost) for S seconds (0 to 3600), or for good without S.
     """
 
     def __init__(self, faults: dict[int, Fault] | None = None) -> None:
         self.faults = faults or {}
 
     @classmethod
-    def parse(cls, spec: str | None) -> FaultPlan:
-        """Parse a --faults SPEC; ConfigError (one line) when malformed."""
-        return cls(parse_faults(spec, FAULTS))
+    def parse(cls, spec: str | None, option: str = "--faults") -> FaultPlan:
+        """Parse a --faults SPEC; ConfigError (one line) when malformed or out of range."""
+        return cls(parse_faults(spec, FAULTS, option))
 
     def at(self, reply: int) -> Fault | None:
         """The fault planned for this reply, if any."""
@@ -57,8 +72,22 @@ class _VanishedError(Exception):
     """The `vanish` fault: the port is gone."""
 
 
+class _ClientLeftError(Exception):
+    """The host closed its end: whatever it sent and the hand has not handled yet is dropped."""
+
+
+class _StoppedError(Exception):
+    """close() was called: the session ends wherever it is."""
+
+
 class SerialSession:
-    """The hand's side of one serial connection: bytes in, firmware, paced bytes out."""
+    """The hand's side of one serial connection: bytes in, firmware, paced bytes out.
+
+    Received bytes wait in a buffer with their arrival times; a request counts as received once its
+    last byte would have crossed the wire (10 bits a byte from its arrival, after the bytes before it).
+    Every wait (the wire, a reply's pacing, a motion, a `late` fault) keeps reading the link, so a host
+    that leaves is seen within POLL_S and its backlog is dropped instead of being paced out.
+    """
 
     def __init__(self, firmware: Firmware, link: Link, faults: FaultPlan, stop: threading.Event) -> None:
         self.fw = firmware
@@ -66,10 +95,13 @@ class SerialSession:
         self.faults = faults
         self.stop = stop
         self._buffer = bytearray()
+        self._arrivals: deque[list[float]] = deque()
+        """Per received chunk still (partly) in the buffer: [its bytes left in the buffer, arrival time]."""
         self._rx_end = 0.0
         self._tx_end = 0.0
         self._replies = 0
         self._mute_until = 0.0
+        self._overflow = False
 
     @property
     def _byte_s(self) -> float:
@@ -78,62 +110,104 @@ class SerialSession:
     def serve(self) -> str:
         """Answer until the peer leaves ('closed'), the emulator stops ('stopped') or a fault ('vanished')."""
         try:
-            while not self.stop.is_set():
-                ready, _, _ = select.select([self.link], [], [], 0.05)
-                if not ready:
-                    continue
-                data = self.link.read()
-                if data is None:
-                    continue
-                if not data:
-                    return "closed"
-                now = time.monotonic()
-                self._rx_end = max(self._rx_end, now) + len(data) * self._byte_s
-                if now < self._mute_until:
-                    continue
-                self._buffer += data
+            while True:
+                self._pump(POLL_S)
                 self._process()
         except _VanishedError:
             return "vanished"
+        except _ClientLeftError:
+            return "closed"
+        except _StoppedError:
+            return "stopped"
         except OSError:
             return "closed"
-        return "stopped"
+
+    # --- the link ------------------------------------------------------------------------------
+
+    def _pump(self, timeout_s: float) -> None:
+        """Take what the host has sent, waiting up to timeout_s for it; raises when the host has left,
+        the emulator is closing or the twin has stopped."""
+        if self.stop.is_set():
+            raise _StoppedError
+        if self.fw.twin.failure is not None:
+            raise RuntimeError(f"the twin stopped: {self.fw.twin.failure}")
+        room = MAX_INPUT_BYTES - len(self._buffer)
+        if room <= 0:  # full: the host's bytes wait in the link, as behind flow control; none is lost
+            time.sleep(max(0.0, min(timeout_s, POLL_S)))
+            return
+        if not select.select([self.link], [], [], max(0.0, timeout_s))[0]:
+            return
+        data = self.link.read(room)
+        if data is None:
+            return
+        if not data:
+            raise _ClientLeftError
+        now = time.monotonic()
+        if now < self._mute_until:
+            return  # muted: what arrives is lost
+        if data:
+            self._buffer += data
+            self._arrivals.append([len(data), now])
+
+    def _consume(self, n: int, *, on_wire: bool = True) -> None:
+        """Drop the first n bytes of the buffer; `on_wire`: they count toward the wire time (_rx_end)."""
+        del self._buffer[:n]
+        while n > 0 and self._arrivals:
+            chunk = self._arrivals[0]
+            k = min(n, int(chunk[0]))
+            if on_wire:
+                self._rx_end = max(self._rx_end, chunk[1]) + k * self._byte_s
+            chunk[0] -= k
+            n -= k
+            if chunk[0] <= 0:
+                self._arrivals.popleft()
+
+    def _cut(self, index: int) -> None:
+        """Remove the byte at `index` of the buffer (a Ctrl-C taken out of the stream)."""
+        del self._buffer[index]
+        for chunk in self._arrivals:
+            if index < chunk[0]:
+                chunk[0] -= 1
+                if chunk[0] <= 0:
+                    self._arrivals.remove(chunk)
+                return
+            index -= int(chunk[0])
+
+    def _sleep_until(self, t: float) -> None:
+        """Wait until monotonic time t, reading the link meanwhile."""
+        while (left := t - time.monotonic()) > 0:
+            self._pump(min(left, POLL_S))
 
     def _ctrl_c(self) -> bool:
-        """During a motion: has a Ctrl-C (0x03) arrived? Other bytes wait for the prompt."""
-        if not select.select([self.link], [], [], 0)[0]:
+        """During a motion: has a Ctrl-C (0x03) arrived? It is taken out; other bytes wait for the prompt."""
+        self._pump(0.0)
+        index = self._buffer.find(EXIT_REALTIME)
+        if index < 0:
             return False
-        data = self.link.read()
-        if not data:
-            return False
-        self._rx_end = max(self._rx_end, time.monotonic()) + len(data) * self._byte_s
-        if EXIT_REALTIME in data:
-            cut = data.index(EXIT_REALTIME)
-            self._buffer += data[:cut] + data[cut + 1 :]
-            return True
-        self._buffer += data
-        return False
+        self._cut(index)
+        return True
 
     def _wait_rx(self) -> None:
         """The request is complete only once its last byte has crossed the wire."""
-        delay = self._rx_end - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+        self._sleep_until(self._rx_end)
 
     def send(self, data: bytes) -> None:
-        """Write at line speed: chunks of about a millisecond of wire time."""
+        """Write at line speed: chunks of about a millisecond of wire time. A host that stops reading
+        loses the rest (the hand never waits for it)."""
         if not data:
             return
         chunk = max(1, int(self.fw.baud / 10 / 1000))
         t = max(time.monotonic(), self._tx_end)
         for i in range(0, len(data), chunk):
             part = data[i : i + chunk]
-            self.link.write(part)
+            if not self.link.write(part, time.monotonic() + WRITE_TIMEOUT_S):
+                self._tx_end = time.monotonic()
+                return
             t += len(part) * self._byte_s
-            delay = t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            self._sleep_until(t)
         self._tx_end = t
+
+    # --- the firmware --------------------------------------------------------------------------
 
     def _process(self) -> None:
         while self._buffer and time.monotonic() >= self._mute_until:
@@ -146,24 +220,35 @@ class SerialSession:
     def _supervisory(self) -> bool:
         # Ctrl-C (0x03) outside a motion has nothing to abort; LF is ignored as on a terminal.
         while self._buffer[:1] in (EXIT_REALTIME, b"\n"):
-            del self._buffer[:1]
+            self._consume(1)
         end = self._buffer.find(b"\r")
+        if self._overflow or end > MAX_LINE_BYTES or (end < 0 and len(self._buffer) > MAX_LINE_BYTES):
+            return self._drop_long_line(end)
         if end < 0:
-            if len(self._buffer) > 256:  # no command is this long: drop it, as the line buffer would
-                self._buffer.clear()
-                self.send(self.fw.options.line_end + b"ERR 32" + self.fw.options.line_end + PROMPT)
             return False
         raw = bytes(self._buffer[:end])
-        del self._buffer[: end + 1]
+        self._consume(end + 1)
         self._wait_rx()
         line = raw.decode("ascii", "replace")
         rest = self.fw.handle_line(line, self.send, self._ctrl_c)
         new_baud = self.fw.pending_baud()
         if new_baud is not None:  # PSET BAUD: the echo went at the old rate; the prompt waits for a CR
             self.fw.baud = new_baud
-            self._buffer.clear()
+            self._consume(len(self._buffer), on_wire=False)
             return True
         self.send(rest)
+        return True
+
+    def _drop_long_line(self, end: int) -> bool:
+        """A line longer than MAX_LINE_BYTES: dropped as it comes; its CR is answered ERR 32."""
+        if end < 0:
+            self._consume(len(self._buffer), on_wire=False)
+            self._overflow = True
+            return False
+        self._consume(end + 1, on_wire=False)
+        self._overflow = False
+        le = self.fw.options.line_end
+        self.send(le + f"ERR {int(ErrorFlag.UNKNOWN_COMMAND)}".encode() + le + PROMPT)
         return True
 
     def _realtime(self) -> bool:
@@ -171,12 +256,12 @@ class SerialSession:
         header = self._buffer[:1]
         le = self.fw.options.line_end
         if header == EXIT_REALTIME:
-            del self._buffer[:1]
+            self._consume(1)
             self._wait_rx()
             self.send(self.fw.leave_loop())
             return True
         if header not in (b"C", b"c", b"A", b"a"):
-            del self._buffer[:1]
+            self._consume(1)
             self._wait_rx()
             self.fw.loop = None
             self.send(le + f"ERR {int(ErrorFlag.INVALID_REALTIME_HEADER)}".encode() + le + PROMPT)
@@ -185,7 +270,7 @@ class SerialSession:
         if len(self._buffer) < size:
             return False
         data = bytes(self._buffer[1:size])
-        del self._buffer[:size]
+        self._consume(size)
         # The sensors are sampled as the block comes in; the control takes effect once it is all in.
         reply = self.fw.feedback_block() if header in (b"C", b"A") else b"*"
         self._wait_rx()
@@ -208,7 +293,7 @@ class SerialSession:
         elif fault.kind == "partial":
             self.send(reply[: max(1, len(reply) // 2)])
         elif fault.kind == "late":
-            time.sleep(float(fault.arg or 0.0))
+            self._sleep_until(time.monotonic() + float(fault.arg or 0.0))
             self.send(reply)
         elif fault.kind == "err":
             if self.fw.options.err_leaves_realtime:
@@ -247,6 +332,10 @@ class HandEmulator(PortServer):
 
     def _session(self, link: Link) -> str:
         return SerialSession(self.firmware, link, self.faults, self.stop_event).serve()
+
+    def failed(self) -> str | None:
+        """Why the emulator no longer serves (a session or the twin's physics thread died), else None."""
+        return self.failure or (f"the twin stopped: {self.twin.failure}" if self.twin.failure else None)
 
 
 def make_hand_emulator(

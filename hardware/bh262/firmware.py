@@ -13,9 +13,11 @@ Emulators may import the simulator (architecture.md); drivers never do.
 
 from __future__ import annotations
 
+import atexit
 import struct
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -94,8 +96,21 @@ class FirmwareError(Exception):
         super().__init__(f"ERR {self.code}")
 
 
+_LIVE_TWINS: weakref.WeakSet[RealTimeTwin] = weakref.WeakSet()
+
+
+@atexit.register
+def _halt_twins_at_exit() -> None:
+    """A twin still stepping at exit (an emulator never closed, e.g. a `bh8emu://` port left open by an
+    error) would be inside mj_step, without the GIL, while the interpreter frees its model and data:
+    a segmentation fault. Halt them all first."""
+    for twin in list(_LIVE_TWINS):
+        twin.halt()
+
+
 class RealTimeTwin:
-    """A SimBackend stepped to wall time on a background thread; `lock` guards every access."""
+    """A SimBackend stepped to wall time on a background thread; `lock` guards every access to MuJoCo
+    (stepping, sensors, commands, the cameras' state copies)."""
 
     def __init__(self, backend: SimBackend, *, chunk_s: float = 0.002) -> None:
         self.backend = backend
@@ -106,6 +121,9 @@ class RealTimeTwin:
         self._thread = threading.Thread(target=self._run, name="bh8-twin", daemon=True)
         self.lag_s = 0.0
         """Worst lag of sim time behind wall time so far (s)."""
+        self.failure: str | None = None
+        """Why the stepping thread died (one line), None while it runs or after a clean stop."""
+        _LIVE_TWINS.add(self)
 
     def start(self) -> None:
         """Connect the sim devices and start stepping (once; later calls do nothing)."""
@@ -119,11 +137,17 @@ class RealTimeTwin:
                     device.connect()
         self._thread.start()
 
-    def stop(self) -> None:
+    def stop(self, timeout_s: float = 5.0) -> None:
         """Stop stepping (the world stays as it is)."""
         self._stop.set()
         if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
+            self._thread.join(timeout=timeout_s)
+
+    def halt(self) -> None:
+        """Stop stepping and take the lock for good: no thread (physics, serial, cameras) enters MuJoCo
+        on this twin again. Called at interpreter exit, before MuJoCo's model and data are freed."""
+        self.stop()
+        self.lock.acquire(timeout=5.0)
 
     def now(self) -> float:
         """Wall time on the twin's clock (s)."""
@@ -145,6 +169,12 @@ class RealTimeTwin:
             time.sleep(0.0005)
 
     def _run(self) -> None:
+        try:
+            self._step_forever()
+        except Exception as exc:  # recorded for the emulator to report (HandEmulator.failed)
+            self.failure = f"{type(exc).__name__}: {exc}"
+
+    def _step_forever(self) -> None:
         world = self.backend.world
         while not self._stop.is_set():
             target = self.now()

@@ -15,18 +15,20 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from hardware.emulation import Fault, Link, PortServer, parse_faults
+from hardware.emulation import NO_ARG, Fault, FaultArg, Link, PortServer, parse_faults
 from hardware.pps.frame import FRAME_SIZE, SEQUENCE_MODULO, encode_frame
 from twin.interface.devices import N_TAXELS, TAXEL_COUNT_MAX
 from twin.interface.errors import ConfigError
 
+MAX_STALL_S = 3600.0
+"""The longest timed `stall` (without a time it is for good)."""
 FAULTS = {
-    "garbage": "none",
-    "partial": "none",
-    "corrupt": "none",
-    "drop": "none",
-    "stall": "optional",
-    "vanish": "none",
+    "garbage": NO_ARG,
+    "partial": NO_ARG,
+    "corrupt": NO_ARG,
+    "drop": NO_ARG,
+    "stall": FaultArg("optional", 0.0, MAX_STALL_S, unit="s"),
+    "vanish": NO_ARG,
 }
 DEFAULT_BAUD = 921_600
 GARBAGE = b"\x00\xa5\x5a\x13\xff\xa5\x7f\x5a\xa5"
@@ -40,17 +42,17 @@ class FaultPlan:
 
     N counts the frames of a session. garbage: noise before frame N; partial: the first half of
     frame N, then the next frame; corrupt: frame N with one byte flipped (its CRC fails); drop: frame N
-    never sent (a sequence gap); stall:S: the device stops for S seconds before frame N (for good
-    without S), losing no frame; vanish: the port closes instead of frame N.
+    never sent (a sequence gap); stall:S: the device stops for S seconds (0 to 3600) before frame N
+    (for good without S), losing no frame; vanish: the port closes instead of frame N.
     """
 
     def __init__(self, faults: dict[int, Fault] | None = None) -> None:
         self.faults = faults or {}
 
     @classmethod
-    def parse(cls, spec: str | None) -> FaultPlan:
-        """Parse a --faults SPEC; ConfigError (one line) when malformed."""
-        return cls(parse_faults(spec, FAULTS))
+    def parse(cls, spec: str | None, option: str = "faults") -> FaultPlan:
+        """Parse a fault SPEC; ConfigError (one line naming `option`) when malformed or out of range."""
+        return cls(parse_faults(spec, FAULTS, option))
 
     def at(self, frame: int) -> Fault | None:
         """The fault planned for this frame, if any."""
@@ -123,7 +125,9 @@ class StreamSession:
                 fault = self.emu.faults.at(self.frame)
                 if fault is not None and fault.kind == "stall":
                     self.emu.on_event(f"stall before frame {self.frame}")
-                    if stop.wait(fault.arg if fault.arg is not None else None):
+                    if self._stall(fault.arg if fault.arg is not None else float("inf")):
+                        return "closed"
+                    if stop.is_set():
                         break
                     next_scan = time.monotonic()
                 data = self.emu.scan()
@@ -136,6 +140,17 @@ class StreamSession:
         except OSError:
             return "closed"
         return "stopped"
+
+    def _stall(self, duration_s: float) -> bool:
+        """Send nothing for duration_s (or until close()); True if the host left meanwhile (a client
+        gone during a stall must not keep the port from the next one)."""
+        end = time.monotonic() + duration_s
+        while not self.emu.stop_event.wait(min(0.05, max(0.0, end - time.monotonic()))):
+            if self.link.peer_gone():
+                return True
+            if time.monotonic() >= end:
+                return False
+        return False
 
     def _send_frame(self, data: bytes, fault: Fault | None, deadline: float) -> None:
         kind = fault.kind if fault is not None else None
@@ -225,6 +240,7 @@ class TactileEmulator(PortServer):
             return StreamSession(self, link).serve()
         except Exception as exc:  # a failing source: report it and close the port, never hang the host
             self.error = exc
+            self.failure = f"the tactile source failed: {exc}"
             self.on_event(f"source failed: {exc}")
             return "vanished"
 

@@ -688,3 +688,34 @@ def test_lowercase_commands_are_accepted(ready_hand: serial.Serial):
     assert all(abs(p - 3000) < 300 for p in fingers(ready_hand))
     assert command(ready_hand, "go", MOTION_TIMEOUT_S) == b"go" + LE + PROMPT
     assert all(p < 300 for p in fingers(ready_hand))
+
+
+# --- the emulator's own arguments and its clients ----------------------------------------------
+
+
+def test_an_unusable_fault_spec_is_refused_before_serving():
+    """`late@31:nan` once passed and killed the serving thread at reply 31 while the process went on."""
+    proc = subprocess.run(
+        [*TWIN, "emulate", "hand", "--faults", "late@31:nan", "--duration", "30"],
+        capture_output=True,
+        text=True,
+        timeout=START_TIMEOUT_S,
+    )
+    assert proc.returncode == 2
+    assert proc.stdout == ""  # no "hand:" line, no "ready"
+    assert proc.stderr.startswith("twin: error: --faults: ") and proc.stderr.count("\n") == 1
+
+
+def test_a_second_tcp_client_is_told_busy_and_closed(launch: Callable[..., str]):
+    address = launch("--port", "tcp:0", "--object", "none")
+    first = _open(address, 9600)
+    try:
+        second = serial.serial_for_url(address, baudrate=9600, timeout=REPLY_TIMEOUT_S)
+        try:
+            assert b"busy" in second.read_until(b"connected to this emulator")
+        finally:
+            second.close()
+        first.write(b"\r")  # the first client still has the hand
+        assert read_until_prompt(first, REPLY_TIMEOUT_S) == PROMPT
+    finally:
+        first.close()

@@ -20,6 +20,7 @@ SECTIONS = (
     "realtime",
     "foam_discretization",
     "serial_cycle",
+    "bridge_under_load",
     "tactile_sensors",
     "stereo_calibration",
     "stereo_pipeline",

@@ -46,6 +46,17 @@ except ImportError:  # not POSIX
     TTY_ERRORS = ()
 
 SUPPORTED_BAUD = (600, 1200, 2400, 4800, 9600, 19200, 38400)
+SCHEDULING_MARGIN_S = 0.5
+"""How late a reply may come, beyond its bytes' wire time, and still count: a scheduling allowance.
+
+A real BH8-262 answers a RealTime block within ~26 ms of its wire time (one lab measured 33 ms per
+cycle at 38400 baud, 6.8 ms of it on the wire). Everything beyond that is the host (or an emulator on
+the same machine) being scheduled late: with every core busy, a Python process waits 100-500 ms for
+the CPU now and then (measured: RealTime replies of `twin emulate hand` on a 2-core machine at load
+7-14, p99 265 ms, worst 414 ms over 300 cycles). A reply later than this counts as missing and the
+cycle is recovered; `watchdog_cycles` attempts in a row without valid feedback stop the run, so a hand
+that went silent is given up on after about (watchdog_cycles + 1) x this (2 s with the defaults: the
+reply, then leaving and re-entering LOOP). 50 ms stopped half of the fault-free runs there."""
 MOTOR_PREFIXES = ("", "1", "2", "3", "4", "S", "G", "GS", "12", "13", "23", "123", "1234")
 
 
@@ -54,7 +65,7 @@ class HandTimeoutError(DeviceError):
 
 
 class PortLostError(DeviceError):
-    """The serial port failed or disappeared."""
+    """The serial port failed or disappeared (EOF, EIO, a reset connection): not a silent hand."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,12 +82,13 @@ class PortSettings:
     """Supervisory replies that involve no motion."""
     motion_timeout_s: float = 15.0
     """Replies to HI, C, O, M, ...: the prompt comes once the motion has ended."""
-    realtime_timeout_s: float = 0.05
-    """Slack beyond the wire time of a RealTime reply before it counts as missing."""
+    realtime_timeout_s: float = SCHEDULING_MARGIN_S
+    """How late a RealTime reply may be beyond its wire time before it counts as missing."""
     baud_switch_wait_s: float = 1.0
     """Pause after PSET BAUD before the bare CR at the new rate (BH8-262 manual: about 1 s)."""
-    recovery_timeout_s: float = 0.25
-    """Each step of re-entering RealTime mode after a lost reply (a live hand answers in ms)."""
+    recovery_timeout_s: float = SCHEDULING_MARGIN_S
+    """Each step of re-entering RealTime mode after a lost reply (a live hand answers in ms; the rest
+    is the same scheduling allowance)."""
     options: WireOptions = field(default_factory=WireOptions)
 
     def __post_init__(self) -> None:
@@ -148,14 +160,18 @@ class BH262:
 
     def _require(self) -> serial.SerialBase:
         if self._port is None:
-            raise PortLostError(f"the hand's port {self.settings.url} is not open")
+            raise PortLostError(f"the hand's port {self.settings.url} is not open (closed or lost)")
         return self._port
+
+    def _lost(self, what: str, exc: BaseException) -> PortLostError:
+        """The port itself failed: say so, apart from a hand that is merely silent."""
+        return PortLostError(f"the hand's port {self.settings.url} was lost: {what} failed ({exc})")
 
     def _write(self, data: bytes) -> None:
         try:
             self._require().write(data)
         except (serial.SerialException, OSError) as exc:
-            raise PortLostError(f"writing to the hand on {self.settings.url} failed: {exc}") from None
+            raise self._lost("writing", exc) from None
 
     def _read(self, size: int, timeout_s: float) -> bytes:
         port = self._require()
@@ -163,7 +179,7 @@ class BH262:
             port.timeout = timeout_s
             return bytes(port.read(size))
         except (serial.SerialException, OSError) as exc:
-            raise PortLostError(f"reading from the hand on {self.settings.url} failed: {exc}") from None
+            raise self._lost("reading", exc) from None
 
     def _read_until_prompt(self, timeout_s: float) -> bytes:
         port = self._require()
@@ -171,13 +187,13 @@ class BH262:
             port.timeout = timeout_s
             return bytes(port.read_until(PROMPT, MAX_REPLY_BYTES))
         except (serial.SerialException, OSError) as exc:
-            raise PortLostError(f"reading from the hand on {self.settings.url} failed: {exc}") from None
+            raise self._lost("reading", exc) from None
 
     def _flush_input(self) -> None:
         try:
             self._require().reset_input_buffer()
         except (serial.SerialException, OSError, *TTY_ERRORS) as exc:
-            raise PortLostError(f"the hand's port {self.settings.url} failed: {exc}") from None
+            raise self._lost("flushing its input", exc) from None
 
     # --- Supervisory ----------------------------------------------------------------------
 
@@ -200,10 +216,21 @@ class BH262:
             raise DeviceError(f"{text!r}: the hand is in RealTime mode; leave it first")
         self._write(format_command(text))
         timeout = self.settings.motion_timeout_s if motion else self.settings.timeout_s
+        deadline = time.monotonic() + timeout
         raw = self._read_until_prompt(timeout)
+        # Nothing but a prompt: an earlier resync's, come late on a busy machine; the reply follows it.
+        while text.strip() and raw.endswith(PROMPT) and self._only_prompts(raw):
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            raw = self._read_until_prompt(left)
         if not raw.endswith(PROMPT):
             raise HandTimeoutError(f"no reply to {text!r} within {timeout:g} s (got {len(raw)} bytes)")
         return parse_reply(raw, text, self.settings.options)
+
+    def _only_prompts(self, raw: bytes) -> bool:
+        """Whether raw holds nothing but prompts and line ends (what bare CRs are answered with)."""
+        return not raw.replace(PROMPT, b"").strip(self.settings.options.line_end)
 
     @staticmethod
     def _prefix(motors: str) -> str:
@@ -335,13 +362,41 @@ class BH262:
         timeout_s = timeout_s or self.settings.timeout_s
         text = f"{config.prefix}LOOP"
         self._write(format_command(text))
-        raw = self._read(len(text) + 1, timeout_s)
+        raw = self._read_loop_answer(text, timeout_s)
         if raw == text.encode() + ACK:
             self.realtime = config
             return
-        rest = self._read_until_prompt(timeout_s)
-        parse_reply(raw + rest, text, self.settings.options)  # raises HandCommandError on ERR n
-        raise HandTimeoutError(f"{text}: no '*' from the hand (got {raw + rest!r})")
+        if raw.startswith(text.encode()) and raw.endswith(PROMPT):
+            parse_reply(raw, text, self.settings.options)  # raises HandCommandError on ERR n
+        raise HandTimeoutError(f"{text}: no '*' from the hand within {timeout_s:g} s (got {raw[-40:]!r})")
+
+    def _read_loop_answer(self, text: str, timeout_s: float) -> bytes:
+        """LOOP's answer from its echo on: the echo and '*', or an error reply up to the prompt.
+
+        Bytes before the echo are an earlier answer that came late (a resync's prompt on a busy
+        machine: the stream is in order, so everything before our echo is stale) and are skipped."""
+        echo = text.encode()
+        expected = echo + ACK
+        deadline = time.monotonic() + timeout_s
+        raw = b""
+        while len(raw) <= MAX_REPLY_BYTES:
+            start = raw.rfind(echo)
+            answer = raw[start:] if start >= 0 else b""
+            if answer == expected or answer.endswith(PROMPT):
+                return answer
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            if len(answer) >= len(expected):  # something else than '*' after the echo: up to the prompt
+                return answer + self._read_until_prompt(left)
+            # Read no further than the end of the expected answer: RealTime blocks may follow it.
+            overlap = max(k for k in range(len(expected) + 1) if raw.endswith(expected[:k]))
+            chunk = self._read(len(expected) - overlap, left)
+            if not chunk:
+                break
+            raw += chunk
+        start = raw.rfind(echo)
+        return raw[start:] if start >= 0 else raw
 
     def cycle(
         self, control: dict[str, Sequence[int]] | None = None, *, feedback: bool = True
@@ -357,14 +412,16 @@ class BH262:
         else:
             out = HEADER_FEEDBACK_ONLY if feedback else HEADER_NOTHING
         size = config.feedback_size if feedback else 1
-        wire = (len(out) + size) * self.settings.byte_s(self.baud)
+        wire_s = (len(out) + size) * self.settings.byte_s(self.baud)
         self._write(out)
-        block = self._read(size, wire + self.settings.realtime_timeout_s)
+        block = self._read(size, wire_s + self.settings.realtime_timeout_s)
         if block[:1] != ACK and block:
             self._error_reply(block)
         if len(block) < size:
-            limit_ms = (wire + self.settings.realtime_timeout_s) * 1e3
-            raise HandTimeoutError(f"RealTime reply: {len(block)} of {size} bytes within {limit_ms:.0f} ms")
+            raise HandTimeoutError(
+                f"RealTime reply: {len(block)} of {size} bytes within {wire_s * 1e3:.0f} ms of wire time "
+                f"+ {self.settings.realtime_timeout_s * 1e3:.0f} ms allowed late"
+            )
         return decode_feedback(config, block) if feedback else None
 
     def _error_reply(self, head: bytes) -> None:

@@ -6,19 +6,20 @@ target within one period, limited by the command's maximum velocity. The set poi
 from the velocities actually sent, so a finger stalled on an object keeps the force it built up
 instead of winding up to full torque: the same motor model as the twin's position servo.
 
-Recovery: a RealTime reply that is missing, short or noisy is retried after leaving and re-entering
-LOOP; after `watchdog_cycles` consecutive cycles without valid feedback the read fails with
-WatchdogError and the backend terminates the motors (T). ERR replies and a lost port stop at once.
+Recovery: a RealTime reply that is missing (later than its wire time plus the driver's scheduling
+allowance), short or noisy is retried after leaving and re-entering LOOP; after `watchdog_cycles`
+attempts in a row without valid feedback the read fails with WatchdogError, and the rig idles the hand
+(`idle()`: T, which raises unless the hand acknowledges it). ERR replies and a lost port (PortLostError:
+EOF, EIO, a reset connection) stop at once and say which it was.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 
 import numpy as np
 
-from hardware.bh262.driver import BH262, HandTimeoutError, PortLostError, PortSettings
+from hardware.bh262.driver import BH262, SUPPORTED_BAUD, HandTimeoutError, PortLostError, PortSettings
 from hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig, ReplyFormatError
 from twin import units
 from twin.interface.backend import Clock
@@ -35,8 +36,19 @@ DEFAULT_REALTIME = RealTimeConfig(
 )
 
 
+RECOVERABLE = (HandTimeoutError, FeedbackFormatError, ReplyFormatError)
+"""A reply that was missing, late, short or garbled: the cycle is retried after re-entering LOOP."""
+IDLE_TRIES = 3
+"""Bare CRs idle() sends, `timeout_s` apart, to find the prompt before T: a hand silent for a moment
+(noise, a late reply in flight) is still stopped."""
+
+
 class WatchdogError(DeviceError):
     """No valid feedback from the hand for too many consecutive cycles."""
+
+
+class IdleError(DeviceError):
+    """The hand did not acknowledge T (terminate): its motors may still be driving."""
 
 
 class BH8SerialHand(Hand):
@@ -88,6 +100,12 @@ class BH8SerialHand(Hand):
         self._velocity = np.zeros(4)
         self._t_sent: float | None = None
         self._commanded_since_read = True
+        self._resync_needed = False
+        """A cycle failed: bytes of it may still be in flight, so LOOP is left and re-entered first."""
+        self._idled = False
+        """T was acknowledged and RealTime mode was not entered again since."""
+        self._idle_failed = False
+        """The last idle found no prompt: on disconnect one more try, not the full IDLE_TRIES."""
 
     @property
     def spec(self) -> DeviceSpec:
@@ -109,9 +127,13 @@ class BH8SerialHand(Hand):
         baud = self.port.switch_baud or self.port.baud
         need = self.wire_time_per_period_s(baud)
         if need > 0.8 * self.spec.period_s:
+            fastest = max(SUPPORTED_BAUD)
+            advice = f"rate_hz at most {int(0.8 / need)}"
+            if baud < fastest:
+                advice = f"switch_baud = {fastest} (the fastest the hand has) or {advice}"
             raise ConfigError(
                 f"at {baud} baud one RealTime period needs {need * 1e3:.1f} ms of wire time, more than 80% "
-                f"of the {self.spec.period_s * 1e3:.1f} ms period: switch to 38400 baud or lower rate_hz"
+                f"of the {self.spec.period_s * 1e3:.1f} ms period: set {advice}"
             )
         self.bh.open()
         try:
@@ -123,10 +145,13 @@ class BH8SerialHand(Hand):
             raise
         self._setpoint = None
         self._commanded_since_read = True
+        self._resync_needed = False
+        self._idled = self._idle_failed = False
 
     def _disconnect(self) -> None:
         try:
-            self.idle()
+            if not self._idled:  # once T was acknowledged (the rig's safe stop) it need not go again
+                self._idle(tries=1 if self._idle_failed else IDLE_TRIES)
             if self.bh.baud != self.port.baud:  # leave the hand at the rate the next session expects
                 self.bh.set_baud(self.port.baud)
         except DeviceError as exc:
@@ -137,28 +162,26 @@ class BH8SerialHand(Hand):
     def read(self) -> HandReading:
         """One RealTime feedback cycle (with a servo update if no command came since the last read)."""
         self._require_connection()
+        self._idled = False
         t_s = self.clock.now()
         control = None if self._commanded_since_read else self._servo(t_s)
         self._commanded_since_read = False
         last: Exception | None = None
-        for _ in range(self.watchdog_cycles):
+        for _ in range(self.watchdog_cycles):  # each attempt: (re-enter LOOP if needed,) one cycle
             try:
-                if self.bh.realtime is None:  # an earlier recovery did not get back into LOOP
+                if self._resync_needed or self.bh.realtime is None:
                     self.bh.recover_realtime(self.realtime)
+                    self._resync_needed = False
                 feedback = self.bh.cycle(control)
                 break
-            except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
+            except RECOVERABLE as exc:  # a PortLostError or an ERR reply stops at once
                 last = exc
+                self._resync_needed = True
                 self.recoveries.append(f"{type(exc).__name__}: {exc}")
                 log.warning("hand feedback lost (%s); re-entering RealTime mode", exc)
-                try:
-                    self.bh.recover_realtime(self.realtime)
-                except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as again:
-                    last = again
         else:
             raise WatchdogError(
-                f"no valid feedback from the hand for {self.watchdog_cycles} cycles (last: {last}); "
-                "motors terminated"
+                f"no valid feedback from the hand for {self.watchdog_cycles} cycles in a row (last: {last})"
             )
         fields = feedback.fields
         position = np.asarray(fields["LFAP"], dtype=np.int32)
@@ -175,18 +198,21 @@ class BH8SerialHand(Hand):
     def command(self, command: HandCommand) -> HandCommand:
         """New set points: velocities go out at once in a control-only (c) cycle."""
         self._require_connection()
+        self._idled = False
         target = np.clip(command.position_counts, 0.0, MAX_COUNTS)
         velocity = float(min(command.max_velocity_counts_s, self.max_wire_velocity_counts_s))
         self._target, self._max_velocity = target, velocity
         control = self._servo(self.clock.now())
+        # After a failed cycle the next read() re-enters LOOP (counted by its watchdog) and sends the
+        # servo velocities with its control block; a command never recovers on its own.
+        self._commanded_since_read = False
+        if self._resync_needed or self.bh.realtime is None:
+            return HandCommand(target, velocity)
         try:
             self.bh.cycle(control, feedback=False)
-        except (HandTimeoutError, FeedbackFormatError, ReplyFormatError) as exc:
-            # The next read() retries and re-sends the servo velocities with its control block.
+        except RECOVERABLE as exc:
+            self._resync_needed = True
             self.recoveries.append(f"{type(exc).__name__}: {exc}")
-            with contextlib.suppress(HandTimeoutError, FeedbackFormatError, ReplyFormatError):
-                self.bh.recover_realtime(self.realtime)  # else the next read() tries again
-            self._commanded_since_read = False
             return HandCommand(target, velocity)
         self._commanded_since_read = True
         return HandCommand(target, velocity)
@@ -209,16 +235,41 @@ class BH8SerialHand(Hand):
         return {"LCV": lcv.tolist(), "LCPG": gain}
 
     def idle(self) -> None:
-        """Leave RealTime mode and send T: the motors stop driving (the worm drives hold)."""
+        """Leave RealTime mode and send T: the motors stop driving (the worm drives hold).
+
+        Returns only once the hand acknowledged T; otherwise IdleError (or PortLostError) says why."""
+        self._idle(IDLE_TRIES)
+
+    def _idle(self, tries: int) -> None:
+        self._idled = False
+        self._idle_failed = True  # until T is acknowledged
         if not self.bh.is_open:
-            return
+            raise IdleError(f"the hand's port {self.port.url} is closed: T (terminate) could not be sent")
         if self.bh.realtime is not None:
             try:
                 self.bh.leave_realtime()
-            except (HandTimeoutError, FeedbackFormatError, ReplyFormatError):
+            except RECOVERABLE:
                 self.bh.realtime = None
-        self.bh.resync()  # drop whatever a fault left in flight; find the prompt
-        self.bh.terminate()
+        self._resync_needed = False
+        self._find_prompt(tries)  # drop whatever a fault left in flight
+        try:
+            self.bh.terminate()
+        except (HandTimeoutError, ReplyFormatError) as exc:
+            raise IdleError(f"the hand did not acknowledge T (terminate): {exc}") from None
+        self._idled, self._idle_failed = True, False
+
+    def _find_prompt(self, tries: int) -> None:
+        """Bare CRs until the prompt answers (`tries`, `timeout_s` each); IdleError if it never does."""
+        for _ in range(tries):
+            try:
+                self.bh.resync()
+                return
+            except HandTimeoutError:
+                continue
+        waited_s = tries * self.port.timeout_s
+        raise IdleError(
+            f"no prompt from the hand within {waited_s:g} s ({tries} tries), so T (terminate) was not sent"
+        )
 
     def metadata(self) -> dict:
         """Port, rate, RealTime layout and recoveries, for run.json."""
@@ -239,4 +290,4 @@ class BH8SerialHand(Hand):
         }
 
 
-__all__ = ["BH8SerialHand", "PortLostError", "WatchdogError"]
+__all__ = ["BH8SerialHand", "IdleError", "PortLostError", "WatchdogError"]

@@ -31,6 +31,10 @@ PENDING_MAX = 256
 """Frames kept for read_pending() (8.5 s at 30 Hz)."""
 POLL_S = 0.05
 """Longest the reader blocks in one read, so disconnect() is noticed quickly."""
+READER_GRACE_S = 0.1
+"""Before a frame older than timeout_s counts as a timeout, the reader thread gets this long to take
+what the port holds: after this process was not scheduled for a while (a busy machine) the frames are
+there, only not read yet."""
 
 
 class TactileTimeoutError(DeviceError):
@@ -141,6 +145,7 @@ class PPSTactile(TactileArray):
         self._require_connection()
         with self._cond:
             self._check_port()
+            self._grace_if_stale()
             age = time.monotonic() - self._received_at
             if self._latest is None or age > self.timeout_s:
                 raise TactileTimeoutError(
@@ -166,6 +171,7 @@ class PPSTactile(TactileArray):
         self._require_connection()
         with self._cond:
             self._check_port()
+            self._grace_if_stale()
             if self._received and time.monotonic() - self._received_at > self.timeout_s:
                 raise TactileTimeoutError(
                     f"no valid frame from the tactile pads on {self.url} for "
@@ -181,6 +187,13 @@ class PPSTactile(TactileArray):
         a wall clock when the run begins, after frames have started to arrive)."""
         age = time.monotonic() - self._received_at
         return dataclasses.replace(self._latest, t_s=self.clock.now() - age)
+
+    def _grace_if_stale(self) -> None:
+        """The newest frame is older than timeout_s: wait up to READER_GRACE_S for the reader (held)."""
+        if self._received and time.monotonic() - self._received_at > self.timeout_s:
+            before = self._received
+            self._cond.wait_for(lambda: self._received > before or self._lost, READER_GRACE_S)
+            self._check_port()
 
     def _wait_for_frame(self, after: int, timeout_s: float, doing: str) -> None:
         with self._cond:
@@ -205,7 +218,7 @@ class PPSTactile(TactileArray):
             except (serial.SerialException, OSError) as exc:
                 if not self._stop.is_set():  # a closed port raises these too; then it was us
                     with self._cond:
-                        self._lost = f"reading the tactile pads on {self.url} failed: {exc}"
+                        self._lost = f"the tactile port {self.url} was lost: reading failed ({exc})"
                         self._cond.notify_all()
                 return
             if not data:

@@ -45,6 +45,7 @@ def test_serial_cycle_rows_carry_the_wire_limit_beside_the_rate():
         "| hand interface (LCV+LCPG / LFV+LFS+LFAP, 1234) | pty | 26 | 147.7 |"
         in serial_cycle.to_markdown(results)
     )
+    assert "| ratio | lost |" in serial_cycle.to_markdown(results)  # late replies recovered and counted
 
 
 def test_why_the_pads_bin_contact_forces():

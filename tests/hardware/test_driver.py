@@ -250,3 +250,41 @@ def test_a_vanished_pty_is_a_port_lost_error_not_a_termios_error():
     finally:
         bh.close()
         emulator.close()
+
+
+@pytest.mark.parametrize(
+    ("switch_baud", "rate_hz", "advice", "never"),
+    [
+        (None, 30.0, "switch_baud = 38400", None),  # at 9600 the fix is the faster rate
+        (38400, 200.0, "rate_hz at most 109", "38400 (the fastest"),  # already there: only a lower rate
+    ],
+)
+def test_a_rate_the_wire_cannot_carry_is_refused_with_true_advice(switch_baud, rate_hz, advice, never):
+    from hardware.backend import WallClock
+    from hardware.bh262.hand import BH8SerialHand
+    from twin.interface.errors import ConfigError
+    from twin.interface.hand_spec import HandConfig
+
+    port = PortSettings(url="/dev/never-opened", switch_baud=switch_baud)
+    hand = BH8SerialHand(HandConfig(rate_hz=rate_hz), port, WallClock())
+    with pytest.raises(ConfigError) as err:
+        hand.connect()  # refused before the port is opened
+    assert advice in str(err.value)
+    assert never is None or never not in str(err.value)
+
+
+def test_a_prompt_that_came_late_does_not_derail_the_next_command_or_loop():
+    """On a busy machine a resync's prompt can arrive after the resync gave up on it: the next
+    command (or LOOP) must read past it to its own answer instead of failing the recovery."""
+    p = peer()
+    p.bh.realtime = None
+    p.feed(b"\n\r=> " + b"PGET BAUD\n\r384\n\r=> ")
+    assert p.bh.pget("BAUD") == 384
+    p.feed(b"=> => " + b"1234LOOP*")
+    p.bh._loop(DEFAULT_REALTIME)
+    assert p.bh.realtime == DEFAULT_REALTIME
+    p.bh.realtime = None
+    p.feed(b"=> " + b"1234LOOP\n\rERR 4\n\r=> ")  # an error after a stale prompt is still the error
+    with pytest.raises(HandCommandError, match="4"):
+        p.bh._loop(DEFAULT_REALTIME)
+    assert p.bh.realtime is None

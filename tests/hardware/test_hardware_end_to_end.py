@@ -90,8 +90,15 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert run.metadata["hand_driver"]["baud"] == 38400
     assert len(run.stream("hand").t_s) == 301
     tactile = run.stream("tactile")  # the PPS driver against the rig emulator's pads, on the same twin
-    assert tactile.measured_rate_hz() == pytest.approx(30.0, rel=0.01)
-    assert run.metadata["tactile_link"]["dropped_frames"] == 0
+    # Every frame recorded once and in order, and every one missing counted: what the driver answers
+    # for. Whether frames go missing, and the rate they arrive at, is the scheduler's: a host not
+    # scheduled for ~0.4 s fills the pty's 4 KB buffer and the pads' later frames are lost, as on a real
+    # line (seen beside a CPU hog: 23 frames, and 28.7 Hz). The 15 % on the rate is that allowance.
+    sequence = np.asarray(tactile["sequence"])
+    assert np.all(np.diff(sequence) >= 1)
+    dropped = np.asarray(tactile["dropped_frames"])
+    assert dropped[-1] - dropped[0] == np.sum(np.diff(sequence) - 1)
+    assert tactile.measured_rate_hz() == pytest.approx(30.0, rel=0.15)
     assert (tmp_path / "hw" / run.metadata["calibration_files"]["tactile_table"]).is_file()
     sim_tips = open_run(tmp_path / "sim").stream("tactile").fields["pad_force_n"][-90:, :3].mean(axis=0)
     hw_tips = tactile.fields["pad_force_n"][-90:, :3].mean(axis=0)
@@ -120,9 +127,9 @@ def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Pat
              "--out", "hw", "--no-progress"],
             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        deadline = time.monotonic() + 30
-        while emulator.firmware.controls_received < 60 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        # Ctrl-C once 60 samples are on disk (a late loop sends more control blocks than it records
+        # samples, so the emulator's count of them is no measure of what was recorded).
+        recorded = _wait_for_samples(tmp_path / "hw", 60)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
         assert proc.returncode == 130, err
@@ -132,7 +139,21 @@ def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Pat
     run = open_run(tmp_path / "hw")
     assert run.status == "interrupted"
     samples = len(run.stream("hand").t_s)
-    assert samples >= 60  # every cycle that was answered before Ctrl-C is on disk
+    assert samples >= recorded >= 60  # what was on disk before Ctrl-C is still there after it
+
+
+def _wait_for_samples(run_dir: Path, n: int, timeout_s: float = 60) -> int:
+    """Until a running run has `n` hand samples on disk (a hang guard); how many it had."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            have = len(open_run(run_dir).stream("hand").t_s)
+        except (OSError, ValueError, KeyError):  # not written yet, or between two writes
+            have = 0
+        if have >= n:
+            return have
+        time.sleep(0.1)
+    raise AssertionError(f"{run_dir} got fewer than {n} hand samples within {timeout_s:g} s")
 
 
 @pytest.mark.parametrize(
@@ -198,21 +219,75 @@ def test_emulator_serves_tcp_and_exits_after_its_duration(tmp_path: Path):
 
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_the_rig_going_away_mid_run_is_one_clear_error_and_the_run_is_kept(tmp_path: Path):
-    """`twin emulate rig --duration 6` stops under a 30 s run and every port vanishes at once: one
-    error line, no traceback, exit 2, and the samples before it are in a run marked failed."""
-    emulator = _emulate_rig(tmp_path, "--no-cameras", "--duration", "6")
+    """`twin emulate rig` stops (Ctrl-C) under a 30 s run once a second of it is on disk, and every port
+    vanishes at once: one error line, no traceback, exit 2, and the samples before it are in a run
+    marked failed. (Stopping it by its own --duration raced a slow start on a busy machine.)"""
+    emulator = _emulate_rig(tmp_path, "--no-cameras")
     rig_file = next(emulator)
+    proc = subprocess.Popen(
+        [*TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig_file), "--duration", "30",
+         "--out", "hw", "--no-progress"],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
     try:
-        hw = twin(
-            "run", "compress", "--backend", "hardware", "--rig", str(rig_file), "--duration", "30",
-            "--out", "hw", "--no-progress", cwd=tmp_path,
-        )  # fmt: skip
+        recorded = _wait_for_samples(tmp_path / "hw", 30)
     finally:
-        emulator.close()
-    assert hw.returncode == 2, hw.stderr
-    assert "Traceback" not in hw.stderr
-    errors = [line for line in hw.stderr.splitlines() if line.startswith("twin: error:")]
-    assert len(errors) == 1, hw.stderr
+        emulator.close()  # SIGINT: the emulator stops and its ports go away
+        _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 2, stderr
+    assert "Traceback" not in stderr
+    errors = [line for line in stderr.splitlines() if line.startswith("twin: error:")]
+    assert len(errors) == 1, stderr
     run = open_run(tmp_path / "hw")
     assert run.status == "failed" and not run.truncated
-    assert len(run.stream("hand")) > 30  # at least a second of samples before the rig went away
+    assert len(run.stream("hand")) >= recorded  # every sample on disk before the rig went away
+
+
+def _wait_for_a_record_batch(stream: Path, timeout_s: float = 60) -> None:
+    """Until `stream` has grown past its first write (its schema): samples are on disk (a hang guard)."""
+    deadline = time.monotonic() + timeout_s
+    first = 0
+    while time.monotonic() < deadline:
+        size = stream.stat().st_size if stream.exists() else 0
+        if first and size > first:
+            return
+        first = first or size
+        time.sleep(0.05)
+    raise AssertionError(f"{stream} got no samples within {timeout_s:g} s")
+
+
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation
+def test_a_killed_emulator_is_a_lost_port_not_a_watchdog_stop(tmp_path: Path):
+    """SIGKILL on `twin emulate hand` mid-run: the pty goes away (EOF/EIO). The error says the port was
+    lost (not that feedback stopped) and does not claim the hand was idled: nothing acknowledged T."""
+    rig_file = tmp_path / "rig.toml"
+    emulator = subprocess.Popen(
+        [*TWIN, "emulate", "hand", "--port", "pty", "--rig-file", str(rig_file), "--duration", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    run_proc = None
+    try:
+        assert any(line.startswith("ready") for line in emulator.stdout)
+        run_proc = subprocess.Popen(
+            [*TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig_file), "--duration", "30",
+             "--out", "hw", "--no-progress"],
+            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        _wait_for_a_record_batch(tmp_path / "hw" / "streams" / "hand.arrows")
+        emulator.kill()
+        _, err = run_proc.communicate(timeout=60)
+    finally:
+        for proc in (emulator, run_proc):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert run_proc.returncode == 2, err
+    errors = [line for line in err.splitlines() if line.startswith("twin: error:")]
+    assert len(errors) == 1 and "Traceback" not in err, err
+    reason = errors[0].split(";")[0]
+    assert "the hand's port /dev/pts/" in reason and "was lost" in reason, err
+    assert "no valid feedback" not in errors[0] and "motors terminated" not in errors[0]
+    assert "the hand was idled" not in errors[0]
+    run = open_run(tmp_path / "hw")
+    assert run.status == "failed" and "was lost" in run.info["error"]
+    assert len(run.stream("hand")) > 0

@@ -122,6 +122,15 @@ class TrajectoryController(CompressController):
 
 def run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
     """One job on the twin: its samples to <out_dir>/<name>.npz; returns its index entry."""
+    from twin.interface.errors import SimulationUnstableError
+
+    try:
+        return _run_trajectory(trajectory, out_dir)
+    except SimulationUnstableError as exc:  # name the job: the sweep runs many
+        raise SimulationUnstableError(f"trajectory {trajectory.name}: {exc}") from None
+
+
+def _run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
     os.environ.setdefault("MUJOCO_GL", "egl")
     from twin.sim.backend import SimBackend
     from twin.sim.cameras import LEFT_CAMERA
@@ -389,11 +398,13 @@ def _run_local(todo: list[Trajectory], out_dir: Path, workers: int, address: str
         for t in todo:
             yield run_trajectory(t, str(out_dir))
         return
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
-    # spawn, not fork: a parent that has rendered holds an EGL context a forked child would deadlock on
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    from twin.processes import worker_pool
+
+    # spawned workers (a parent that has rendered holds an EGL context a forked child would deadlock
+    # on) that die with this process; an error or Ctrl-C cancels the rest and ends them
+    with worker_pool(workers) as pool:
         futures = [pool.submit(run_trajectory, t, str(out_dir)) for t in todo]
         for f in as_completed(futures):
             yield f.result()

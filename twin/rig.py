@@ -11,6 +11,7 @@ import contextlib
 import heapq
 import math
 import tempfile
+import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -30,7 +31,6 @@ from twin.interface.devices import (
     StereoFrame,
     TactileReading,
 )
-from twin.interface.errors import DeviceError
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
@@ -191,13 +191,63 @@ class _Event:
     payload: object = field(compare=False, default=None)
 
 
+LOOP_RATE_TOLERANCE = 0.98
+"""A hardware hand loop below 98 % of its declared rate is reported (RigResult.warnings)."""
+
+
 @dataclass
 class RigResult:
-    """How a run went: samples delivered per stream and the final phase."""
+    """How a run went: samples delivered per stream, the final phase, and what needs saying."""
 
     samples: dict[str, int]
     final_phase: str
     duration_s: float
+    warnings: list[str] = field(default_factory=list)
+    """One line each, e.g. a hardware hand loop that missed its declared rate; the run still completed."""
+
+
+@dataclass
+class StopReport:
+    """Why a run stopped early and what the rig verified after: whether the hand acknowledged its idle."""
+
+    reason: str
+    """The stopping error, one line (or "interrupted (Ctrl-C or SIGTERM)")."""
+    error_type: str
+    idle: str
+    """'acknowledged' (the hand took its idle command), 'failed' (it did not answer: it may still be
+    powered) or 'not connected' (its connection was already gone: not idled)."""
+    idle_error: str | None = None
+
+    @property
+    def hand_safe(self) -> bool:
+        """True when the hand acknowledged its idle."""
+        return self.idle == "acknowledged"
+
+    def message(self) -> str:
+        """One line for run.json's error and the CLI: the stop, then what became of the hand."""
+        if self.idle == "acknowledged":
+            after = "the hand was idled"
+        elif self.idle == "failed":
+            after = f"idling the hand failed: {self.idle_error}; the hand may still be powered"
+        else:
+            after = "the hand's connection was already closed, so it was not idled; it may still be powered"
+        return f"{self.reason}; {after}"
+
+    def to_json(self) -> dict:
+        """For run.json's metadata ('stop')."""
+        return {
+            "reason": self.reason,
+            "error_type": self.error_type,
+            "idle": self.idle,
+            "idle_error": self.idle_error,
+        }
+
+
+def _describe(exc: BaseException) -> str:
+    """The one line a stopping error stands for."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (Ctrl-C or SIGTERM)"
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 class Rig:
@@ -238,6 +288,9 @@ class Rig:
         self.samples: dict[str, int] = {}
         self._stereo_sampled = 0
         self.stop_reason: str | None = None
+        """Why the run stopped early and what became of the hand, one line (None: it did not)."""
+        self.stop: StopReport | None = None
+        """The same, structured (run.json's 'stop')."""
         self._vision: ThreadPoolExecutor | None = None
         self._stereo_jobs: deque[Future] = deque()
         self.surface_scores: list[dict] = []
@@ -300,11 +353,15 @@ class Rig:
             for k in range(n_scene + 1):
                 self._push(k / self.scene_rate_hz, "scene")
         # Only samples up to duration_s are scheduled; their deliveries (latency later) all complete.
+        hand_wall_s: list[float] = []  # wall time of the first and the latest hand sample (hardware)
         try:
             while self._queue:
                 event = heapq.heappop(self._queue)
                 clock.advance_to(event.t_s)
                 if event.kind == "sample_hand":
+                    if not self.backend.is_simulated:
+                        now_s = time.monotonic()
+                        hand_wall_s = [hand_wall_s[0] if hand_wall_s else now_s, now_s]
                     reading = hand.read()
                     truth = self.backend.ground_truth()
                     self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
@@ -333,8 +390,8 @@ class Rig:
                     self.scene_logger(event.t_s)
             self._record_stereo(wait=True)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
-            self.stop_reason = f"{type(exc).__name__}: {exc}"
-            self._safe_stop()
+            self.stop = self._safe_stop(exc)
+            self.stop_reason = self.stop.message()
             with contextlib.suppress(Exception):  # keep the frames already taken (<= the backlog)
                 self._record_stereo(wait=True)
             raise
@@ -342,17 +399,37 @@ class Rig:
             if self._vision is not None:
                 self._vision.shutdown(wait=True, cancel_futures=True)
                 self._vision = None
-        return RigResult(dict(self.samples), controller.phase, duration_s)
+        warnings = self._loop_rate_warnings(n_hand, duration_s, hand_wall_s)
+        return RigResult(dict(self.samples), controller.phase, duration_s, warnings)
 
-    def _safe_stop(self) -> None:
-        """Idle the hand (T on hardware) before anything else; a hand that cannot be reached is left."""
+    def _loop_rate_warnings(self, n_hand: int, duration_s: float, wall_s: list[float]) -> list[str]:
+        """A hardware hand loop that ran below LOOP_RATE_TOLERANCE of its declared rate, in one line."""
+        if self.backend.is_simulated or n_hand < 1 or len(wall_s) < 2 or wall_s[1] <= wall_s[0]:
+            return []
+        declared_hz = self.backend.hand.spec.rate_hz
+        took_s = wall_s[1] - wall_s[0]
+        achieved_hz = n_hand / took_s
+        if achieved_hz >= LOOP_RATE_TOLERANCE * declared_hz:
+            return []
+        run_s = n_hand / declared_hz
+        return [
+            f"hand loop ran at {achieved_hz:.1f} Hz of {declared_hz:g} Hz "
+            f"({run_s:.3g} s of run time took {took_s:.3g} s): the readings are further apart than declared"
+        ]
+
+    def _safe_stop(self, exc: BaseException) -> StopReport:
+        """Idle the hand (T on hardware) before anything else, and say whether it acknowledged."""
+        report = StopReport(_describe(exc), type(exc).__name__, "not connected")
         hand = self.backend.hand
         if not hand.is_connected:
-            return
+            return report
         try:
             hand.idle()
-        except (DeviceError, OSError) as exc:
-            self.stop_reason = f"{self.stop_reason}; idling the hand failed: {exc}"
+        except Exception as idle_exc:
+            report.idle, report.idle_error = "failed", _describe(idle_exc)
+        else:
+            report.idle = "acknowledged"
+        return report
 
     def _deliver(self, reading: HandReading, truth: dict | None, controller: Controller) -> None:
         physical = units.hand_reading_to_physical(

@@ -1,28 +1,32 @@
 """One experiment run end to end: validate, connect, record, visualize, close.
 
-Everything that can be checked is checked before the run directory is created, so bad input leaves
-nothing behind; once the directory exists, run.json says whether the run completed, failed or was
-interrupted, so nothing half-written looks complete.
+Everything that can be checked is checked before any device is touched or the run directory created:
+every file the run reads (tactile and stereo calibration) is loaded from the backend's copies first,
+so a bad file leaves nothing behind and the hand unmoved. Once the directory exists, run.json says
+whether the run completed, failed or was interrupted, and for a stop why and whether the hand
+acknowledged its idle, so nothing half-written looks complete and no status claims more than was
+verified.
 """
 
 from __future__ import annotations
 
+import contextlib
 import platform
 import sys
 import tempfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from twin import __version__, units
 from twin.interface.backend import Backend
-from twin.interface.errors import ConfigError
+from twin.interface.errors import ConfigError, DeviceError, RunDirectoryLostError, TwinError
 from twin.recording import RunWriter
 from twin.rig import Rig, RigResult, summarize_surface_scores
 from twin.safety import SafetyLayer
-from twin.tactile.calibration import load_calibration
+from twin.tactile.calibration import TaxelCalibration, load_calibration
 from twin.vision.calibration import StereoCalibration
 from twin.vision.pipeline import StereoPipeline
 from twin.vision.reconstruct import Rectifier
@@ -38,6 +42,8 @@ class RunOutcome:
     rrd_path: Path
     result: RigResult
     status: str
+    warnings: list[str] = field(default_factory=list)
+    """Lines to show the user (stderr) beside a complete status, also kept in run.json's 'warnings'."""
 
 
 def default_run_dir(experiment: str, object_name: str) -> Path:
@@ -110,10 +116,7 @@ def run_experiment(
             raise ConfigError(
                 f"--bbox {x},{y},{w},{h}: not a non-empty box inside the {width}x{height} image"
             )
-    stereo_pipeline = None
-    if backend.stereo is not None:  # calibration and box checked before anything is written
-        with tempfile.TemporaryDirectory() as tmp:
-            stereo_pipeline = _stereo_pipeline(backend, backend.write_calibration(Path(tmp)), stereo_box)
+    tactile_calibration, stereo_pipeline = _load_run_files(backend, stereo_box)
     check_output_dir(run_dir)
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())
@@ -129,14 +132,14 @@ def run_experiment(
             **backend.metadata(),
         }
         rrd_path = run_dir / RRD_NAME
-        with RunWriter(run_dir, metadata) as writer:
+        writer = RunWriter(run_dir, metadata)
+        rig = None
+        try:
             files = backend.write_calibration(run_dir / "calibration")
             writer.update_metadata(
                 calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
             )
-            tactile_calibration = load_calibration(files) if backend.tactile is not None else None
             recording = RunRecording(rrd_path, recording_id=run_dir.name)
-            rig = None
             try:
                 scene_logger = _scene_logger(backend, recording)
                 if stereo_pipeline is not None:
@@ -157,10 +160,16 @@ def run_experiment(
                 result = rig.run(controller, duration_s, progress)
                 writer.update_metadata(final_phase=result.final_phase)
             finally:  # what went wrong is kept even when the run failed
-                writer.update_metadata(**backend.diagnostics())
-                if rig is not None and rig.surface_scores:
-                    writer.update_metadata(stereo_truth=summarize_surface_scores(rig.surface_scores))
+                _keep_diagnostics(writer, backend, rig)
                 recording.close()
+            for line in result.warnings:
+                writer.warn(line)
+        except BaseException as exc:
+            error = _close_failed(writer, exc, rig)
+            if error is exc:
+                raise
+            raise error from exc
+        writer.close("complete")
     except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
         try:
             backend.disconnect()
@@ -168,7 +177,65 @@ def run_experiment(
             exc.add_note(f"(then disconnecting the devices failed too: {cleanup})")
         raise
     backend.disconnect()
-    return RunOutcome(run_dir, rrd_path, result, "complete")
+    return RunOutcome(run_dir, rrd_path, result, "complete", list(result.warnings))
+
+
+def _load_run_files(
+    backend: Backend, stereo_box: tuple[int, int, int, int] | None
+) -> tuple[TaxelCalibration | None, StereoPipeline | None]:
+    """Every file the run reads, loaded and checked from the backend's copies in a scratch directory,
+    before any device is touched or the run directory made: a bad table costs one line, nothing else."""
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            files = backend.write_calibration(Path(tmp))
+        except OSError as exc:  # a calibration file named in rig.toml that cannot be read
+            name = exc.filename or "a calibration file"
+            raise ConfigError(f"{name}: cannot read the calibration file ({exc.strerror or exc})") from None
+        try:
+            tactile = load_calibration(files) if backend.tactile is not None else None
+            stereo = _stereo_pipeline(backend, files, stereo_box) if backend.stereo is not None else None
+        except ConfigError as exc:  # name the user's file, not the scratch copy that was read
+            raise type(exc)(_source_names(str(exc), files, backend)) from None
+    return tactile, stereo
+
+
+def _source_names(message: str, copies: dict[str, Path], backend: Backend) -> str:
+    """`message` with each scratch copy's path replaced by the file it was copied from (rig.toml's)."""
+    sources = getattr(getattr(backend, "config", None), "calibration", None) or {}
+    for name, copy in copies.items():
+        message = message.replace(str(copy), str(sources.get(name, name)))
+    return message
+
+
+def _keep_diagnostics(writer: RunWriter, backend: Backend, rig: Rig | None) -> None:
+    """Keep the backend's diagnostics and the reconstruction scores in run.json; a directory already
+    lost is left to writer.close to report."""
+    try:
+        writer.update_metadata(**backend.diagnostics())
+        if rig is not None and rig.surface_scores:
+            writer.update_metadata(stereo_truth=summarize_surface_scores(rig.surface_scores))
+    except RunDirectoryLostError:
+        pass
+
+
+def _close_failed(writer: RunWriter, exc: BaseException, rig: Rig | None) -> BaseException:
+    """Close the run as failed or interrupted with what was verified; the error to raise.
+
+    run.json's error names the stopping error and whether the hand acknowledged its idle; where it
+    did not, the CLI's line says so too (a DeviceError with the same message)."""
+    stop = rig.stop if rig is not None else None
+    message = stop.message() if stop is not None else (str(exc) or type(exc).__name__)
+    if stop is not None:
+        with contextlib.suppress(RunDirectoryLostError):
+            writer.update_metadata(stop=stop.to_json())
+    status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+    try:
+        writer.close(status, message)
+    except RunDirectoryLostError as lost:
+        return lost
+    if stop is not None and not stop.hand_safe and isinstance(exc, TwinError | OSError):
+        return DeviceError(message)
+    return exc
 
 
 def _stereo_pipeline(

@@ -19,3 +19,11 @@ class DeviceNotConnectedError(DeviceError, ConnectionError):
 
 class DeviceNotConfiguredError(DeviceError):
     """A hardware device was asked for but the rig names no port or file for it."""
+
+
+class SimulationUnstableError(TwinError):
+    """The physics diverged (MuJoCo reset its state): the model is too stiff or too damped for its step."""
+
+
+class RunDirectoryLostError(TwinError):
+    """The run directory was removed or replaced while the run was being written."""

@@ -2,10 +2,16 @@
 
 A stream file cut mid-batch (SIGKILL, power loss) yields every complete record batch; the stream
 is then listed in ``Run.truncated``. A run whose writer never closed keeps status "running".
+
+A closed run's stream files are checked against the size and SHA-256 its writer recorded at close
+(run.json ``integrity``): a file changed since (one byte flipped, cut, replaced) raises RunFormatError
+when read, and ``Run.corrupt_streams()`` lists such files without raising. A run without digests
+(killed writer, older runs) is read with the crash recovery above.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -14,11 +20,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from twin.interface.errors import TwinError
 from twin.recording.schema import TIME_FIELD, StreamSpec, arrow_schema, to_numpy
-from twin.recording.writer import FORMAT, FORMAT_VERSION, RUN_FILE, STREAM_SUFFIX, STREAMS_DIR
+from twin.recording.writer import DIGEST, FORMAT, FORMAT_VERSION, RUN_FILE, STREAM_SUFFIX, STREAMS_DIR
 
 
-class RunFormatError(ValueError):
+class RunFormatError(TwinError, ValueError):
     """The directory is not a readable barrett-twin run (missing/corrupt run.json or stream)."""
 
 
@@ -50,9 +57,8 @@ class StreamData:
         return (n - 1) / duration if n >= 2 and duration > 0 else math.nan
 
 
-def _read_batches(path: Path, schema: pa.Schema) -> tuple[list[pa.RecordBatch], bool]:
-    """Every complete record batch in an Arrow stream file, and whether it ended mid-message."""
-    data = path.read_bytes()
+def _read_batches(path: Path, data: bytes, schema: pa.Schema) -> tuple[list[pa.RecordBatch], bool]:
+    """Every complete record batch in an Arrow stream file's bytes, and whether it ended mid-message."""
     if not data:
         return [], False  # the writer never wrote a batch (the schema goes out with the first)
     try:
@@ -80,6 +86,10 @@ class Run:
         self.metadata: dict = self.info.get("metadata", {})
         self.status: str = self.info["status"]
         self.streams: dict[str, StreamSpec] = _load_specs(self.info, self.path)
+        self.digests: dict[str, dict] = _load_digests(self.info, self.path)
+        """Per stream, the size and SHA-256 recorded at close (empty for a run that never closed)."""
+        self.warnings: list[str] = _load_warnings(self.info, self.path)
+        """What the run said needs saying (e.g. a hand loop that missed its rate); status may be complete."""
         self._data: dict[str, StreamData] = {}
         self._truncated: set[str] = set()
 
@@ -97,6 +107,33 @@ class Run:
         if name not in self._data:
             self._data[name] = self._read_stream(self.streams[name])
         return self._data[name]
+
+    def corrupt_streams(self) -> dict[str, str]:
+        """Streams whose file differs from what the writer recorded at close (or is missing): one line
+        each. Empty for an intact run, and for a run without digests (only crash recovery applies)."""
+        problems = {}
+        for name in self.streams:
+            try:
+                self.stream(name)
+            except RunFormatError as exc:
+                problems[name] = str(exc)
+        return problems
+
+    def sample_mismatches(self) -> dict[str, tuple[int, int]]:
+        """Streams whose readable samples differ from run.json's count: {stream: (recorded, readable)}.
+
+        A closed run should have none. A run whose writer was killed has counts from its last
+        run.json write (usually fewer than readable); a cut file has fewer readable than recorded."""
+        recorded = self.info.get("samples")
+        recorded = recorded if isinstance(recorded, dict) else {}
+        out = {}
+        for name in self.streams:
+            count = recorded.get(name, 0)
+            count = count if isinstance(count, int) and not isinstance(count, bool) else -1
+            readable = len(self.stream(name))
+            if count != readable:
+                out[name] = (count, readable)
+        return out
 
     def summary(self) -> list[dict]:
         """Per stream: name, samples, nominal and measured rate, duration and field descriptions."""
@@ -126,13 +163,29 @@ class Run:
         if not path.is_file():
             raise RunFormatError(f"run {self.path}: stream file {path.name} is missing")
         schema = arrow_schema(spec)
-        batches, cut = _read_batches(path, schema)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise RunFormatError(f"run {self.path}: stream file {path.name} is unreadable: {exc}") from None
+        self._check_digest(spec.name, path, data)
+        batches, cut = _read_batches(path, data, schema)
         if cut:
             self._truncated.add(spec.name)
         table = pa.Table.from_batches(batches, schema=schema)
         t_s = np.array(table.column(TIME_FIELD).to_numpy(), dtype=np.float64)
         fields = {name: to_numpy(table.column(name), f) for name, f in spec.fields.items()}
         return StreamData(spec=spec, t_s=t_s, fields=fields)
+
+    def _check_digest(self, name: str, path: Path, data: bytes) -> None:
+        """RunFormatError if the file is not what the writer closed (size or SHA-256)."""
+        recorded = self.digests.get(name)
+        if recorded is None:
+            return
+        if len(data) != recorded["bytes"] or hashlib.sha256(data).hexdigest() != recorded[DIGEST]:
+            raise RunFormatError(
+                f"run {self.path}: stream file {path.name} is corrupt: it changed after the run closed "
+                f"({len(data)} bytes, {recorded['bytes']} recorded; the SHA-256 differs from run.json's)"
+            )
 
     def __repr__(self) -> str:
         return f"Run({str(self.path)!r}, status={self.status!r}, streams={list(self.streams)})"
@@ -167,6 +220,36 @@ def _load_specs(info: dict, path: Path) -> dict[str, StreamSpec]:
         return {name: StreamSpec.from_json(d) for name, d in info["streams"].items()}
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise RunFormatError(f"{path / RUN_FILE}: bad stream spec: {exc!r}") from None
+
+
+def _load_digests(info: dict, path: Path) -> dict[str, dict]:
+    """The per-stream digests of a closed run (run.json ``integrity``), checked for shape."""
+    integrity = info.get("integrity")
+    if integrity is None:
+        return {}
+    streams = integrity.get("streams") if isinstance(integrity, dict) else None
+    ok = (
+        isinstance(streams, dict)
+        and integrity.get("algorithm") == DIGEST
+        and all(
+            isinstance(d, dict)
+            and isinstance(d.get("bytes"), int)
+            and isinstance(d.get(DIGEST), str)
+            and name in info["streams"]
+            for name, d in streams.items()
+        )
+    )
+    if not ok:
+        raise RunFormatError(f"{path / RUN_FILE}: malformed 'integrity' (per-stream bytes and {DIGEST})")
+    return streams
+
+
+def _load_warnings(info: dict, path: Path) -> list[str]:
+    """The run's warning lines (absent in runs written before warnings existed)."""
+    warnings = info.get("warnings", [])
+    if not isinstance(warnings, list) or not all(isinstance(w, str) for w in warnings):
+        raise RunFormatError(f"{path / RUN_FILE}: 'warnings' is not a list of lines")
+    return warnings
 
 
 def open_run(path: Path | str) -> Run:

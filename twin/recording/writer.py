@@ -9,10 +9,26 @@ Rows are buffered in memory and written as a record batch once they span ``flush
 run time, or the oldest has waited ``flush_interval_s`` of wall time, and each write is flushed to
 the OS. A killed process therefore loses only its buffered rows; the reader recovers every complete
 batch. run.json is only ever replaced whole (temp file + os.replace), never half-written.
+
+What a run directory promises:
+
+- status: "running" while written (and forever, if the writer was killed: the reader then recovers
+  every complete batch); "complete" (every stream written to its end), "failed" or "interrupted",
+  with ``error``: one line saying why, and what was verified after (the rig's stop, e.g. whether the
+  hand acknowledged its idle). A "complete" run may carry ``warnings`` (a list of lines, e.g. a hand
+  loop that missed its declared rate): the recording is whole, but something about it needs saying.
+- integrity: a closed run's run.json holds each stream file's size and SHA-256 as written
+  (``integrity``); the reader checks them and refuses a stream file changed since (RunFormatError).
+  run.json itself is plain text and carries no digest.
+- identity: everything is written through descriptors of the directory created, never by path, and
+  its identity (device, inode) is checked at every flush and before run.json is written. A directory
+  removed or replaced mid-run stops the run with RunDirectoryLostError, and nothing is ever written
+  into a replacement.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -27,6 +43,7 @@ import numpy as np
 import pyarrow as pa
 from numpy.typing import ArrayLike
 
+from twin.interface.errors import RunDirectoryLostError
 from twin.recording.schema import FieldSpec, StreamSpec, arrow_schema, to_arrow
 
 FORMAT = "barrett-twin-run"
@@ -36,6 +53,9 @@ STREAMS_DIR = "streams"
 STREAM_SUFFIX = ".arrows"
 STATUSES = frozenset({"complete", "failed", "interrupted"})
 """Final statuses accepted by ``RunWriter.close`` (a run being written is "running")."""
+DIGEST = "sha256"
+"""The digest of each stream file recorded in a closed run's run.json (``integrity``)."""
+_DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
 
 
 def _utc_now() -> str:
@@ -61,15 +81,32 @@ def to_plain_json(obj: object) -> Any:
     return json.loads(json.dumps(obj, default=_json_default))
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write ``data`` to ``path`` via a synced temp file and os.replace, so it is never partial."""
-    tmp = path.with_name(f".{path.name}.tmp")
+def write_json_atomic(path: Path, data: dict, dir_fd: int | None = None) -> None:
+    """Write ``data`` to ``path`` via a synced temp file and os.replace, so it is never partial.
+
+    With ``dir_fd`` the name is taken in that open directory (whatever its path now leads to)."""
+    tmp = f".{path.name}.tmp"
+    where = {"dir_fd": dir_fd} if dir_fd is not None else {}
+    tmp_path, final = (tmp, path.name) if dir_fd is not None else (path.with_name(tmp), path)
     text = json.dumps(data, indent=2, default=_json_default)
-    with open(tmp, "w", encoding="utf-8") as f:
+    fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644, **where)
+    with open(fd, "w", encoding="utf-8") as f:
         f.write(text + "\n")
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+    os.replace(tmp_path, final, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+
+
+def file_digest(fd: int) -> dict[str, Any]:
+    """Size and SHA-256 of an open file, read from its start (what run.json's ``integrity`` holds)."""
+    digest = hashlib.sha256()
+    size = 0
+    offset = 0
+    while chunk := os.pread(fd, 1 << 20, offset):
+        digest.update(chunk)
+        size += len(chunk)
+        offset += len(chunk)
+    return {"bytes": size, DIGEST: digest.hexdigest()}
 
 
 def _check_run_dir(run_dir: Path) -> None:
@@ -85,10 +122,12 @@ def _check_run_dir(run_dir: Path) -> None:
 class _StreamFile:
     """One open stream: its Arrow writer, its row buffer and its bookkeeping."""
 
-    def __init__(self, spec: StreamSpec, path: Path) -> None:
+    def __init__(self, spec: StreamSpec, name: str, dir_fd: int) -> None:
         self.spec = spec
+        self.name = name
         self.schema = arrow_schema(spec)
-        self.file: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed in close()
+        fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644, dir_fd=dir_fd)
+        self.file: IO[bytes] = open(fd, "wb")  # noqa: SIM115 - closed in close()
         self.writer = pa.ipc.new_stream(self.file, self.schema)
         self.t: list[float] = []
         self.rows: dict[str, list[np.ndarray]] = {name: [] for name in spec.fields}
@@ -126,15 +165,26 @@ class _StreamFile:
         for rows in self.rows.values():
             rows.clear()
 
-    def close(self) -> None:
-        """Write what is buffered, end the Arrow stream, fsync and close the file."""
+    def close(self) -> dict[str, Any]:
+        """Write what is buffered, end the Arrow stream, fsync and close the file; its digest."""
         try:
             self.write()
             self.writer.close()
             self.file.flush()
             os.fsync(self.file.fileno())
+            return file_digest(self.file.fileno())
         finally:
             self.file.close()
+
+    def is_at(self, dir_fd: int) -> bool:
+        """True while the stream's name in its directory still leads to the file being written."""
+        try:
+            named = os.stat(self.name, dir_fd=dir_fd)
+        except OSError:
+            return False
+        if self.file.closed:
+            return True
+        return os.path.samestat(named, os.fstat(self.file.fileno()))
 
 
 def _validate_row(spec: StreamSpec, values: Mapping[str, ArrayLike]) -> dict[str, np.ndarray]:
@@ -183,16 +233,30 @@ class RunWriter:
             "status": "running",
             "created_utc": _utc_now(),
             "streams": {},
+            "warnings": [],
             "metadata": self._metadata,
         }
         _check_run_dir(self._run_dir)
-        (self._run_dir / STREAMS_DIR).mkdir()
+        self._dir_fd = os.open(self._run_dir, _DIR_FLAGS)
+        try:
+            os.mkdir(STREAMS_DIR, dir_fd=self._dir_fd)
+            self._streams_fd = os.open(STREAMS_DIR, _DIR_FLAGS, dir_fd=self._dir_fd)
+        except BaseException:
+            os.close(self._dir_fd)
+            raise
+        self._identity = (os.fstat(self._dir_fd), os.fstat(self._streams_fd))
+        self._checked_s = time.monotonic()
         self._write_info()
 
     @property
     def run_dir(self) -> Path:
         """The run directory being written."""
         return self._run_dir
+
+    @property
+    def warnings(self) -> list[str]:
+        """The run's warnings so far (see ``warn``)."""
+        return list(self._info["warnings"])
 
     def add_stream(self, spec: StreamSpec) -> None:
         """Declare a stream (before or during the run); ValueError on a duplicate name."""
@@ -201,13 +265,16 @@ class RunWriter:
             raise TypeError(f"add_stream expects a StreamSpec, got {type(spec).__name__}")
         if spec.name in self._streams:
             raise ValueError(f"stream {spec.name!r} already added")
-        path = self._run_dir / STREAMS_DIR / f"{spec.name}{STREAM_SUFFIX}"
-        self._streams[spec.name] = _StreamFile(spec, path)
+        self.check_identity()
+        self._streams[spec.name] = _StreamFile(spec, f"{spec.name}{STREAM_SUFFIX}", self._streams_fd)
         self._info["streams"][spec.name] = spec.to_json()
         self._write_info()
 
     def append(self, stream: str, t_s: float, values: Mapping[str, ArrayLike]) -> None:
-        """Record one sample of ``stream`` at run time ``t_s`` (non-decreasing per stream)."""
+        """Record one sample of ``stream`` at run time ``t_s`` (non-decreasing per stream).
+
+        RunDirectoryLostError once the run directory has been removed or replaced (checked at most
+        every flush interval of wall time)."""
         self._check_open()
         sf = self._streams.get(stream)
         if sf is None:
@@ -219,6 +286,9 @@ class RunWriter:
             raise ValueError(f"stream {stream!r}: t_s {t} is before the previous {sf.last_t}")
         now = time.monotonic()
         sf.buffer(t, _validate_row(sf.spec, values), now)
+        if now - self._checked_s >= self._flush_interval_s:
+            self.check_identity()
+            self._checked_s = now
         for other in self._streams.values():
             if other.due(self._flush_interval_s, now):
                 other.write()
@@ -226,6 +296,7 @@ class RunWriter:
     def flush(self) -> None:
         """Write all buffered rows of all streams now."""
         self._check_open()
+        self.check_identity()
         for sf in self._streams.values():
             sf.write()
 
@@ -235,23 +306,50 @@ class RunWriter:
         self._metadata.update(to_plain_json(items))
         self._write_info()
 
+    def warn(self, message: str) -> None:
+        """Add one line to the run's ``warnings`` (kept whatever the final status) and rewrite run.json."""
+        self._check_open()
+        self._info["warnings"].append(str(message))
+        self._write_info()
+
+    def check_identity(self) -> None:
+        """RunDirectoryLostError unless the run directory, streams/ and every stream file are still
+        the ones this writer created, at the path it was given."""
+        if self._identity_intact():
+            return
+        status = "its status could not be written" if not self._closed else "run.json was not written"
+        raise RunDirectoryLostError(
+            f"the run directory {self._run_dir} was removed or replaced during the run; its recording is "
+            f"lost ({status})"
+        )
+
     def close(self, status: str = "complete", error: str | None = None) -> None:
-        """Flush and fsync every stream, then record the final status in run.json (idempotent)."""
+        """Flush and fsync every stream, then record the final status in run.json (idempotent).
+
+        Each stream file's size and SHA-256 go into run.json (``integrity``). RunDirectoryLostError,
+        and nothing written, when the directory was removed or replaced meanwhile."""
         if status not in STATUSES:
             raise ValueError(f"status {status!r} not one of {sorted(STATUSES)}")
         if self._closed:
             return
         self._closed = True
         failure: BaseException | None = None
-        for sf in self._streams.values():
+        digests: dict[str, dict] = {}
+        for name, sf in self._streams.items():
             try:
-                sf.close()
+                digests[name] = sf.close()
             except Exception as exc:  # record the failure, still close the other streams
                 failure = failure or exc
-        if failure is not None and status == "complete":
-            status, error = "failed", f"closing streams: {failure}"
-        self._info.update(status=status, error=error, closed_utc=_utc_now())
-        self._write_info()
+        try:
+            self.check_identity()
+            if failure is not None and status == "complete":
+                status, error = "failed", f"closing streams: {failure}"
+            self._info.update(status=status, error=error, closed_utc=_utc_now())
+            self._info["integrity"] = {"algorithm": DIGEST, "streams": digests}
+            self._write_info(checked=True)
+        finally:
+            os.close(self._streams_fd)
+            os.close(self._dir_fd)
         if failure is not None:
             raise failure
 
@@ -275,7 +373,22 @@ class RunWriter:
         if self._closed:
             raise RuntimeError(f"run {self._run_dir} is closed")
 
-    def _write_info(self) -> None:
-        """Rewrite run.json (atomically) with the current streams, sample counts and metadata."""
+    def _identity_intact(self) -> bool:
+        """The path still leads to the directory created, streams/ is the one made, files are ours."""
+        run_identity, streams_identity = self._identity
+        try:
+            at_path = os.stat(self._run_dir)
+            streams = os.stat(STREAMS_DIR, dir_fd=self._dir_fd)
+        except OSError:
+            return False
+        if not (os.path.samestat(at_path, run_identity) and os.path.samestat(streams, streams_identity)):
+            return False
+        return all(sf.is_at(self._streams_fd) for sf in self._streams.values())
+
+    def _write_info(self, checked: bool = False) -> None:
+        """Rewrite run.json (atomically, in the directory created) with the current streams, sample
+        counts and metadata; never into a directory that replaced it."""
+        if not checked:
+            self.check_identity()
         self._info["samples"] = {name: sf.written for name, sf in self._streams.items()}
-        write_json_atomic(self._run_dir / RUN_FILE, self._info)
+        write_json_atomic(self._run_dir / RUN_FILE, self._info, dir_fd=self._dir_fd)

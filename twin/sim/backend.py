@@ -20,12 +20,23 @@ from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
 from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth, score_against
 from twin.sim.tactile import SimTactile, SimTactileSensor
-from twin.sim.world import SimWorld
+from twin.sim.world import DEFAULT_HINT, SimWorld
 from twin.vision.calibration import StereoCalibration
 from twin.vision.reconstruct import Box, Rectifier
 
 FINGERS = (1, 2, 3)
 STEREO_CALIBRATION_FILE = "stereo_calibration.json"
+
+
+def _divergence_hint(foam: FoamParams | None) -> str:
+    """What to change when this scene's physics diverges: the object's modulus or damping."""
+    if foam is None:
+        return DEFAULT_HINT
+    return (
+        f"the object ({foam.name}: E = {foam.young_pa:g} Pa, damping {foam.damping:g} s) is too stiff or "
+        "too damped for the physics step; use a smaller --young or --damping (the library's objects "
+        "have E = 15-150 kPa, damping 0.002 s)"
+    )
 
 
 class SimClock(Clock):
@@ -70,7 +81,7 @@ class SimBackend(Backend):
         self.stereo_calibration_file = stereo_calibration_file
         self.foam = foam
         self.seed = seed
-        self.world = SimWorld(build_model(foam, cameras=stereo))
+        self.world = SimWorld(build_model(foam, cameras=stereo), hint=_divergence_hint(foam))
         rng = np.random.default_rng(seed)
         self.hand = SimHand(self.world, hand_config or HandConfig(), rng)
         self.tactile = (

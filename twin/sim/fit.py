@@ -22,10 +22,8 @@ modulus along a valley (a 25 % change moves E ~8 %) and the elasticity damping b
 from __future__ import annotations
 
 import math
-import multiprocessing
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,11 +32,13 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from twin.interface.devices import TAXEL_COUNT_MAX
-from twin.interface.errors import ConfigError
+from twin.interface.errors import ConfigError, SimulationUnstableError
+from twin.processes import worker_pool
 from twin.recording.reader import Run
 from twin.sim.foam import FoamParams
 from twin.sim.replay import Commands, Replay, replay
 from twin.tactile.layout import FINGERTIP_PADS, LAYOUT
+from twin.validation import check_run_metadata
 
 PARAMS = ("young_pa", "damping", "poisson")
 BOUNDS = {"young_pa": (5e3, 5e5), "damping": (2e-4, 2e-2), "poisson": (0.05, 0.45)}
@@ -190,7 +190,11 @@ def _to_params(x: Sequence[float], names: Sequence[str]) -> dict[str, float]:
 
 def _replay_x(x: Sequence[float]) -> Replay:
     params = _to_params(x, _WORKER["names"])
-    return replay(_WORKER["base"].with_overrides(**params), _WORKER["commands"])
+    try:
+        return replay(_WORKER["base"].with_overrides(**params), _WORKER["commands"])
+    except SimulationUnstableError as exc:  # say which candidate: the fit's search put it there
+        given = ", ".join(f"{k} {v:.4g}" for k, v in params.items())
+        raise SimulationUnstableError(f"replaying the candidate {given}: {exc}") from None
 
 
 @dataclass
@@ -260,6 +264,7 @@ def fit_run(
     friction are kept, the named parameters fitted."""
     started = time.perf_counter()
     run = Run(run_path)
+    check_run_metadata(run.info, run.path / "run.json")  # types of what the fit reads: one line if not
     for stream in ("hand", "command"):
         if stream not in run.streams or not len(run.stream(stream)):
             raise FitError(
@@ -291,11 +296,8 @@ def fit_run(
     cache: dict[tuple[float, ...], Replay] = {}
     evaluations = 0
 
-    # spawned, not forked: a caller that has rendered (a notebook) holds an EGL context a fork inherits
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(
-        workers, mp_context=context, initializer=_init_worker, initargs=(base, commands, names)
-    ) as pool:
+    # spawned workers that die with this process and end with the block (twin.processes)
+    with worker_pool(workers, initializer=_init_worker, initargs=(base, commands, names)) as pool:
 
         def evaluate(xs: list[NDArray]) -> list[Replay]:
             nonlocal evaluations

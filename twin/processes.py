@@ -1,0 +1,128 @@
+"""Process lifecycle: SIGTERM as an interruption, and worker pools that never outlive their parent.
+
+`sigterm_as_interrupt()` makes `kill PID` (a batch system, `timeout`, systemd) end a command exactly
+as Ctrl-C does: KeyboardInterrupt in the main thread, so runs are marked "interrupted" and the hand is
+idled. `worker_pool()` is a spawn-context ProcessPoolExecutor whose workers die with the parent
+(Linux: PR_SET_PDEATHSIG = SIGKILL, set by each worker at start; elsewhere the parent's own cleanup),
+leave Ctrl-C to the parent, and are terminated, queued work cancelled, when the parent's `with` block
+ends in an error or an interruption: a killed or interrupted `twin fit` / `twin sweep` leaves no
+worker behind holding memory and the terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from types import FrameType
+from typing import Any
+
+PR_SET_PDEATHSIG = 1
+"""prctl option (linux/prctl.h): the signal this process gets when its parent thread dies."""
+TERMINATE_GRACE_S = 2.0
+"""How long terminated workers get to exit before they are killed."""
+
+
+def _raise_interrupt(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM handler: the same KeyboardInterrupt a Ctrl-C raises."""
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+
+def sigterm_as_interrupt() -> bool:
+    """Treat SIGTERM like Ctrl-C (KeyboardInterrupt in the main thread); idempotent.
+
+    Returns False where no handler can be installed (not the main thread, or no SIGTERM here)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "SIGTERM"):
+        return False
+    if signal.getsignal(signal.SIGTERM) is not _raise_interrupt:
+        signal.signal(signal.SIGTERM, _raise_interrupt)
+    return True
+
+
+def die_with_parent() -> None:
+    """Ask the kernel to SIGKILL this process when its parent dies (Linux; a no-op elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return
+    with contextlib.suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+
+
+def _start_worker(parent_pid: int, initializer: Callable[..., None] | None, initargs: tuple) -> None:
+    """Every pool worker's first act: die with the parent, leave Ctrl-C to it, then the caller's setup."""
+    die_with_parent()
+    if os.getppid() != parent_pid:  # the parent died before the death signal was armed
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends the pool
+    if initializer is not None:
+        initializer(*initargs)
+
+
+def stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Cancel queued work and end the pool's processes now (SIGTERM, then SIGKILL after a grace)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.terminate()
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.join(TERMINATE_GRACE_S)
+            if process.is_alive():
+                process.kill()
+                process.join(TERMINATE_GRACE_S)
+
+
+@contextlib.contextmanager
+def worker_pool(
+    workers: int, initializer: Callable[..., None] | None = None, initargs: tuple[Any, ...] = ()
+) -> Iterator[ProcessPoolExecutor]:
+    """A spawn-context process pool whose workers die with this process and end with the block.
+
+    Spawned, not forked: a caller that has rendered holds an EGL context a forked child would inherit.
+    A normal exit waits for the work submitted; an exception or KeyboardInterrupt cancels what is
+    queued and terminates the workers before it propagates."""
+    pool = ProcessPoolExecutor(
+        workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_start_worker,
+        initargs=(os.getpid(), initializer, tuple(initargs)),
+    )
+    try:
+        yield pool
+    except BaseException:
+        stop_workers(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def child_pids(pid: int) -> list[int]:
+    """The live child processes of `pid` (Linux /proc; empty elsewhere)."""
+    children = []
+    with contextlib.suppress(OSError):
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                with open(f"/proc/{entry}/stat", encoding="ascii", errors="replace") as f:
+                    stat = f.read()
+                fields = stat[stat.rindex(")") + 2 :].split()
+                if int(fields[1]) == pid and fields[0] != "Z":
+                    children.append(int(entry))
+    return children
+
+
+def descendant_pids(pid: int) -> list[int]:
+    """Every live process below `pid` (children, their children, ...)."""
+    out, todo = [], [pid]
+    while todo:
+        kids = child_pids(todo.pop())
+        out += kids
+        todo += kids
+    return out

@@ -47,6 +47,7 @@ from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
 from twin.interface.tactile_spec import TactileConfig
 from twin.safety import SafetyLimits
+from twin.validation import check_number
 from twin.vision.calibration import StereoCalibration, StereoCalibrationError
 
 _HAND_KEYS = {
@@ -90,6 +91,27 @@ _LIMIT_KEYS = {
     "max_velocity_counts_s": float,
     "max_fingertip_force_kg": float,
 }
+_POSITIVE_S = {"min": 0.0, "max": 60.0, "min_inclusive": False}
+_RATE_HZ = {"min": 0.0, "max": 1000.0, "min_inclusive": False}
+_PIXELS = {"min": 1, "max": 100_000}
+_RANGES: dict[str, dict[str, Any]] = {
+    "baud": {"min": 1, "max": 10_000_000},
+    "switch_baud": {"min": 0, "max": 10_000_000},
+    "rate_hz": _RATE_HZ,
+    "watchdog_cycles": {"min": 1, "max": 1000},
+    "timeout_s": _POSITIVE_S,
+    "realtime_timeout_s": {"min": 0.0, "max": 10.0, "min_inclusive": False},
+    "baud_switch_wait_s": {"min": 0.0, "max": 60.0},
+    "lcvc": {"min": 1, "max": 255},
+    "latency_s": {"min": 0.0, "max": 10.0},
+    "native_width": _PIXELS,
+    "native_height": _PIXELS,
+    "width": _PIXELS,
+    "height": _PIXELS,
+    "max_velocity_counts_s": {"min": 0.0, "max": 1e6, "min_inclusive": False},
+    "max_fingertip_force_kg": {"min": 0.0, "max": 100.0, "min_inclusive": False},
+}
+"""The range of every numeric key (any table): finite, and within what a rig can mean (twin.validation)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -175,6 +197,8 @@ def _typed(where: str, table: dict, schema: dict) -> dict:
             value, ok = float(value), True
         if not ok:
             raise ConfigError(f"{where}.{key}: expected {kind.__name__}, got {value!r}")
+        if kind in (int, float):
+            value = check_number(value, f"{where}.{key}", kind=kind, **_RANGES[key])
         out[key] = value
     return out
 
@@ -233,7 +257,7 @@ def load_rig(path: Path | str) -> RigConfig:
                 **{k: hand[k] for k in ("watchdog_cycles", "initialize", "lcvc") if k in hand},
             )
         elif set(hand) - {"rate_hz"}:
-            raise ConfigError(f"{path}: [hand] settings given without a port")
+            raise ConfigError("[hand] settings given without a port")
         tactile_config = TactileConfig(rate_hz=tactile.pop("rate_hz", TactileConfig().rate_hz))
         tactile_port = None
         if "port" in tactile:
@@ -244,7 +268,7 @@ def load_rig(path: Path | str) -> RigConfig:
                     "name tactile_table or tactile_points in [calibration]"
                 )
         elif tactile:
-            raise ConfigError(f"{path}: [tactile] settings given without a port")
+            raise ConfigError("[tactile] settings given without a port")
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     return RigConfig(

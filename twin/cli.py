@@ -7,20 +7,38 @@ Bad input ends with one line on stderr and exit status 2; nothing is simulated o
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from twin.interface.errors import ConfigError, TwinError
+from twin.validation import (
+    check_run_metadata,
+    duration,
+    existing_dir,
+    existing_file,
+    experiment_name,
+    finite,
+    integer,
+    new_dir,
+    out_dir,
+    out_file,
+    run_dir,
+    seed,
+)
 
 if TYPE_CHECKING:
     from twin.shape.dataset import ShapeData
 
 EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+"""128 + SIGINT, as a shell reports a Ctrl-C; SIGTERM is treated the same."""
 
 
 def _fail(message: str) -> int:
@@ -28,32 +46,67 @@ def _fail(message: str) -> int:
     return EXIT_USAGE
 
 
+class TwinArgumentParser(argparse.ArgumentParser):
+    """argparse with the house's error form: one line `twin: error: ...` on stderr and exit status 2
+    (argparse's own prints the usage first: two lines or more)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        """One line naming the subcommand's help, then exit 2."""
+        line = " ".join(message.split())
+        self.exit(EXIT_USAGE, f"twin: error: {line} (see `{self.prog} --help`)\n")
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> object:
+        """argparse's, less a hole: before Python 3.12 `--duration=--` gave the flag [] unchecked."""
+        value = super()._get_values(action, arg_strings)
+        if action.nargs is None and isinstance(value, list):
+            self.error(f"argument {argparse._get_action_name(action)}: expected one argument")
+        return value
+
+
+YOUNG_PA = finite(0, 1e9, min_inclusive=False)
+"""Young's modulus (Pa): > 0, and no stiffer than 1 GPa (a foam twin; MuJoCo diverges long before)."""
+SIZE_MM = finite(0, 1000, min_inclusive=False)
+"""An object's extent (mm): > 0 and at most 1 m."""
+WORKERS = integer(1, 1024)
+"""Processes in parallel."""
+
+
 def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("object overrides (any library parameter)")
-    g.add_argument("--young", type=float, metavar="PA", help="Young's modulus (Pa)")
-    g.add_argument("--poisson", type=float, metavar="NU", help="Poisson ratio, in [0, 0.5)")
-    g.add_argument("--damping", type=float, metavar="S", help="elasticity damping (s)")
-    g.add_argument("--density", type=float, metavar="KG_M3", help="density (kg/m^3)")
-    g.add_argument("--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
-    g.add_argument("--resolution", type=int, metavar="N", help="flexcomp vertices per axis")
+    g.add_argument("--young", type=YOUNG_PA, metavar="PA", help="Young's modulus (Pa)")
+    g.add_argument(
+        "--poisson", type=finite(0, 0.5, max_inclusive=False), metavar="NU", help="Poisson ratio, in [0, 0.5)"
+    )
+    g.add_argument("--damping", type=finite(0, 1), metavar="S", help="elasticity damping (s), in [0, 1]")
+    g.add_argument(
+        "--density", type=finite(0, 2e4, min_inclusive=False), metavar="KG_M3", help="density (kg/m^3)"
+    )
+    g.add_argument("--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
+    g.add_argument("--resolution", type=integer(3, 12), metavar="N", help="flexcomp vertices per axis (3-12)")
     g.add_argument("--dof", choices=("trilinear", "quadratic", "full"), help="foam discretization")
-    g.add_argument("--friction", type=float, help="sliding friction coefficient")
+    g.add_argument(
+        "--friction", type=finite(0, 3, min_inclusive=False), help="sliding friction coefficient, in (0, 3]"
+    )
 
 
 def _add_run_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     """What every `twin run` experiment takes: backend, hand, rig, duration, seed, output, progress."""
     p.add_argument("--backend", choices=("sim", "hardware"), default="sim")
     p.add_argument("--hand", metavar="PORT", help="hardware: the hand's port or URL (overrides --rig)")
-    p.add_argument("--rig", type=Path, metavar="FILE", help="hardware: rig.toml (ports, baud, limits)")
-    p.add_argument("--duration", type=float, default=duration_s, metavar="S", help="run length (s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (sim)")
-    p.add_argument("--out", type=Path, metavar="DIR", help="run directory (default runs/...)")
+    p.add_argument(
+        "--rig", type=existing_file(), metavar="FILE", help="hardware: rig.toml (ports, baud, limits)"
+    )
+    p.add_argument(
+        "--duration", type=duration(), default=duration_s, metavar="S", help="run length (s), up to a day"
+    )
+    p.add_argument("--seed", type=seed(), default=0, help="seed of the sensor noise (sim), 0 to 2^32-1")
+    p.add_argument("--out", type=new_dir(), metavar="DIR", help="run directory (default runs/...)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `twin`."""
-    parser = argparse.ArgumentParser(
+    parser = TwinArgumentParser(
         prog="twin",
         description="Barrett BH8 digital twin: simulate, record and view foam compression runs; identify the "
         "foam (eq. 4), fit the twin to a run, and train the shape network.",
@@ -78,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--stereo-calibration",
-        type=Path,
+        type=existing_file(),
         metavar="FILE",
         help="cameras: calibration file (`twin calibrate cameras`; default: sim truth, rig.toml on hardware)",
     )
@@ -89,7 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument(
         "--predict",
-        type=Path,
+        type=existing_dir(),
         metavar="MODEL",
         help="a `twin train` model: predict the object's contour from every hand reading (with --cameras, "
         "beside the measured one)",
@@ -102,21 +155,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "identify", help="eq. 4 per finger and the foam's Young's modulus, from a compress run"
     )
-    p.add_argument("run_dir", type=Path, metavar="RUN", help="a `twin run compress` run directory")
+    p.add_argument("run_dir", type=run_dir(), metavar="RUN", help="a `twin run compress` run directory")
     p.add_argument(
-        "--free", type=Path, metavar="FREE_RUN", help="a `twin run free` run: the hand's own terms"
+        "--free", type=run_dir(), metavar="FREE_RUN", help="a `twin run free` run: the hand's own terms"
     )
     p.add_argument("--model", choices=("kelvin-voigt", "hunt-crossley"), default="kelvin-voigt")
     p.add_argument("--json", action="store_true", help="also print the results file")
-    p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/identify)")
+    p.add_argument("--out", type=out_dir(), metavar="DIR", help="where the results go (default RUN/identify)")
     p.add_argument("--shape", choices=("block", "cylinder", "sphere"), help="object shape (hardware runs)")
     p.add_argument(
-        "--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="object extents (hardware runs)"
+        "--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="object extents (hardware runs)"
     )
 
     p = sub.add_parser("fit", help="fit the twin's foam to a run by replaying its commands (real-to-sim)")
     p.add_argument(
-        "run_dir", type=Path, metavar="RUN", help="a run directory (sim or hardware) with commands"
+        "run_dir", type=run_dir(), metavar="RUN", help="a run directory (sim or hardware) with commands"
     )
     p.add_argument(
         "--params",
@@ -125,44 +178,59 @@ def build_parser() -> argparse.ArgumentParser:
         default=["young_pa", "damping", "poisson"],
         help="foam parameters to fit",
     )
-    p.add_argument("--workers", type=int, default=2, help="replays in parallel (processes)")
+    p.add_argument("--workers", type=WORKERS, default=2, help="replays in parallel (processes)")
     p.add_argument("--object", help="library object to put in the twin, for runs that do not describe theirs")
     p.add_argument(
-        "--size-mm", type=float, nargs=3, metavar=("X", "Y", "Z"), help="with --object: its extents"
+        "--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="with --object: its extents"
     )
-    p.add_argument("--young", type=float, metavar="PA", help="first guess of E (default: scan the range)")
+    p.add_argument("--young", type=YOUNG_PA, metavar="PA", help="first guess of E (default: scan the range)")
     p.add_argument("--json", action="store_true", help="also print the results file")
-    p.add_argument("--out", type=Path, metavar="DIR", help="where the results go (default RUN/fit)")
+    p.add_argument("--out", type=out_dir(), metavar="DIR", help="where the results go (default RUN/fit)")
     p.add_argument("--no-progress", action="store_true", help="no progress line")
 
     p = sub.add_parser(
         "sweep", help="shape-network dataset: many compressions with varied finger trajectories"
     )
     p.add_argument("--objects", nargs="+", default=["sphere"], metavar="NAME", help="library objects")
-    p.add_argument("--trajectories", type=int, default=16, metavar="N", help="trajectories per object")
-    p.add_argument("--workers", type=int, default=2, metavar="K", help="trajectories run in parallel")
+    p.add_argument(
+        "--trajectories", type=integer(1, 100_000), default=16, metavar="N", help="trajectories per object"
+    )
+    p.add_argument("--workers", type=WORKERS, default=2, metavar="K", help="trajectories run in parallel")
     p.add_argument("--executor", choices=("local", "ray"), default="local")
     p.add_argument("--address", help="ray: the cluster's address (default: a local Ray instance)")
-    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="length of each trajectory (s)")
-    p.add_argument("--points", type=int, default=32, metavar="n", help="contour points")
+    p.add_argument(
+        "--duration",
+        type=duration(min_s=5.0),
+        default=20.0,
+        metavar="S",
+        help="length of each trajectory (s): > 5 (the grasp takes ~4 s), up to a day",
+    )
+    p.add_argument("--points", type=integer(3, 10_000), default=32, metavar="n", help="contour points (>= 3)")
     p.add_argument(
         "--surface",
         action="store_true",
         help="also keep the fused 3-D surface as heights on a hand-frame grid (about twice the cost)",
     )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, required=True, metavar="DATASET", help="dataset directory (resumable)")
+    p.add_argument("--seed", type=seed(), default=0)
+    p.add_argument(
+        "--out", type=out_dir(), required=True, metavar="DATASET", help="dataset directory (resumable)"
+    )
     p.add_argument(
         "--from-runs",
         nargs="+",
-        type=Path,
+        type=run_dir(),
         metavar="RUN",
         help="instead of simulating: add recorded runs with --cameras (sim or hardware) to the dataset",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     p = sub.add_parser("train", help="train the shape network (6-30-2n) on a sweep dataset, with baselines")
-    p.add_argument("dataset", type=Path, metavar="DATASET", help="a `twin sweep` directory")
+    p.add_argument(
+        "dataset",
+        type=existing_dir("index.json", "a sweep dataset"),
+        metavar="DATASET",
+        help="a `twin sweep` directory",
+    )
     p.add_argument("--object", required=True, help="the object whose network to train")
     p.add_argument(
         "--target",
@@ -174,14 +242,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--out",
-        type=Path,
+        type=out_dir(),
         metavar="DIR",
         help="where the model goes (default DATASET/models/OBJECT for the hull, OBJECT-TARGET otherwise)",
     )
-    p.add_argument("--epochs", type=int, default=3000)
+    p.add_argument("--epochs", type=integer(1, 10_000_000), default=3000)
     p.add_argument(
         "--folds",
-        type=int,
+        type=integer(2, 100_000),
         metavar="K",
         help="contours: score by K-fold cross-validation over trajectories, every trajectory held out "
         "once (the default: K = 4, or one fold per trajectory where there are fewer); the model kept is "
@@ -189,54 +257,68 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--validation",
-        type=float,
+        type=finite(0, 1, min_inclusive=False, max_inclusive=False),
         metavar="F",
         help="score on one held-out fraction F of the trajectories instead (3-D variant: 0.25 by default)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed(), default=0)
     p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
 
     p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
     p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
-    p.add_argument("--baud", type=int, default=9600, help="rate the hand powers up at (default 9600)")
+    p.add_argument(
+        "--baud",
+        type=integer(1, 10_000_000),
+        default=9600,
+        help="rate the hand powers up at (default 9600; the BH8-262's rates: 600 to 38400)",
+    )
     p.add_argument("--port", default="pty", metavar="pty|tcp:PORT", help="where to serve (default pty)")
     p.add_argument("--faults", metavar="SPEC", help="hand faults, e.g. garbage@40,drop@80,vanish@200")
     p.add_argument("--tactile-faults", metavar="SPEC", help="rig: tactile faults, e.g. corrupt@30,stall@60:1")
     p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the twin's sensor noise")
+    p.add_argument("--seed", type=seed(), default=0, help="seed of the twin's sensor noise")
     p.add_argument(
-        "--rig-file", type=Path, metavar="FILE", help="write a rig.toml pointing here (rig: always)"
+        "--rig-file", type=out_file(), metavar="FILE", help="write a rig.toml pointing here (rig: always)"
     )
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: Ctrl-C)")
+    p.add_argument(
+        "--duration", type=duration(), metavar="S", help="stop after S seconds, up to a day (default: Ctrl-C)"
+    )
     p.add_argument(
         "--no-cameras", action="store_true", help="rig: leave the stereo cameras out (they cost CPU)"
     )
 
     p = sub.add_parser("info", help="summarize a run directory")
-    p.add_argument("run_dir", type=Path, metavar="DIR")
+    p.add_argument("run_dir", type=run_dir(), metavar="DIR")
     p.add_argument("--json", action="store_true")
 
     p = sub.add_parser("compare", help="compare two runs of one scenario (e.g. sim vs hardware)")
-    p.add_argument("run_a", type=Path, metavar="DIR_A", help="reference run (e.g. the sim backend's)")
-    p.add_argument("run_b", type=Path, metavar="DIR_B")
+    p.add_argument("run_a", type=run_dir(), metavar="DIR_A", help="reference run (e.g. the sim backend's)")
+    p.add_argument("run_b", type=run_dir(), metavar="DIR_B")
     p.add_argument("--json", action="store_true")
 
     p = sub.add_parser("view", help="open a run in the Rerun viewer")
-    p.add_argument("run_dir", type=Path, metavar="DIR")
+    p.add_argument("run_dir", type=existing_dir(), metavar="DIR")
 
     p = sub.add_parser("calibrate", help="calibrate a sensor")
     cal_sub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     c = cal_sub.add_parser("cameras", help="stereo pair + camera-to-hand transform (paper §4.1)")
     c.add_argument(
-        "--out", type=Path, default=Path("stereo_calibration.json"), metavar="FILE", help="calibration file"
+        "--out",
+        type=out_file(),
+        default=Path("stereo_calibration.json"),
+        metavar="FILE",
+        help="calibration file (an existing one only with --force)",
     )
+    c.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     c.add_argument(
         "--views",
-        type=Path,
+        type=existing_dir(),
         metavar="DIR",
         help="from image pairs: left_*.png/right_*.png chessboards, palm_left/right.png (default: sim)",
     )
-    c.add_argument("--seed", type=int, help="sim: seed of the chessboard poses and camera noise (default 0)")
+    c.add_argument(
+        "--seed", type=seed(), help="sim: seed of the chessboard poses and camera noise (default 0)"
+    )
     return parser
 
 
@@ -353,12 +435,19 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             shape_model=shape_model,
         ),
     )
-    print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    _print_completion(outcome)
     truth = json.loads((outcome.run_dir / "run.json").read_text())["metadata"].get("stereo_truth")
     if truth:
         print(f"reconstruction vs the twin's truth: {_surface_summary(truth)}")
     print(f"view it: twin view {outcome.run_dir}")
     return 0
+
+
+def _print_completion(outcome) -> None:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
+    """'run complete' on stdout, and each of the run's warnings (a loop that missed its rate) on stderr."""
+    print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    for warning in outcome.warnings:
+        print(f"twin: warning: {warning}", file=sys.stderr)
 
 
 def _hand_backend(args: argparse.Namespace, foam):  # noqa: ANN001
@@ -392,20 +481,25 @@ def cmd_run_free(args: argparse.Namespace) -> int:
         not args.no_progress,
         lambda progress: run_free_motion(backend, run_dir, duration_s=args.duration, progress=progress),
     )
-    print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
+    _print_completion(outcome)
     print(f"use it: twin identify RUN --free {outcome.run_dir}")
     return 0
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """`twin identify`: eq. 4 per finger, the modulus, and the files that show them."""
-    from twin.identify.report import FigureProcess, write_results
-
-    for path, flag in ((args.run_dir, "RUN"), (args.free, "--free")):
-        if path is not None and not (path / "run.json").is_file():
-            raise ConfigError(f"{flag} {path}: not a run directory (no run.json)")
     if (args.shape is None) != (args.size_mm is None):
         raise ConfigError("--shape and --size-mm go together")
+    _run_metadata(args.run_dir, "RUN")
+    if args.free is not None:
+        name = experiment_name(_run_metadata(args.free, "--free"))
+        if name != "free":
+            raise ConfigError(
+                f"--free {args.free}: a '{name}' run, not a `twin run free` run (the hand's own terms come "
+                "from the empty hand swinging its fingers)"
+            )
+    from twin.identify.report import FigureProcess, write_results
+
     size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
     with FigureProcess() as figure_process:  # imports matplotlib on the other core meanwhile
         from twin.identify.identify import identify_run
@@ -446,6 +540,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_metadata(path: Path, flag: str) -> dict:
+    """run.json's metadata, with the types the analyses read; one line naming the file and key if not."""
+    run_json = path / "run.json"
+    try:
+        info = json.loads(run_json.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"{flag} {path}: run.json is unreadable ({exc})") from None
+    return check_run_metadata(info, run_json)
+
+
 def _feature_summary(part: dict) -> str:
     """One mapping feature's own estimate, and why it was left out if it was."""
     return f"{part['feature']} {part['young_pa'] / 1e3:.1f} kPa" + (
@@ -455,23 +559,25 @@ def _feature_summary(part: dict) -> str:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """`twin fit`: the twin's foam parameters that reproduce a run, and the files that show them."""
+    if args.size_mm is not None and args.object is None:
+        raise ConfigError("--size-mm needs --object (the library object it resizes)")
+    _run_metadata(args.run_dir, "RUN")
+    foam = None
+    if args.object is not None:
+        from twin.sim.foam import get_object
+
+        size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
+        foam = get_object(args.object).with_overrides(size_m=size)  # unknown or ill-fitting: one line
     from twin.sim.fit import fit_run
     from twin.sim.fit_report import write_fit
-
-    if not (args.run_dir / "run.json").is_file():
-        raise ConfigError(f"RUN {args.run_dir}: not a run directory (no run.json)")
-    if args.workers < 1:
-        raise ConfigError("--workers must be >= 1")
-    if args.young is not None and not args.young > 0:
-        raise ConfigError("--young must be > 0 Pa")
 
     def progress(replays: int, wall_s: float) -> None:
         if not args.no_progress:
             print(f"\r  {replays} replays, {wall_s:.0f} s", end="", file=sys.stderr, flush=True)
 
-    initial = {"young_pa": args.young} if args.young else None
+    initial = {"young_pa": args.young} if args.young is not None else None
     result = fit_run(
-        args.run_dir, names=args.params, workers=args.workers, initial=initial, progress=progress
+        args.run_dir, names=args.params, workers=args.workers, initial=initial, progress=progress, foam=foam
     )
     if not args.no_progress:
         print(file=sys.stderr)
@@ -505,17 +611,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if args.from_runs:
         for run_dir in args.from_runs:
-            if not (run_dir / "run.json").is_file():
-                raise ConfigError(f"--from-runs {run_dir}: not a run directory (no run.json)")
-        for run_dir in args.from_runs:
             entry = trajectory_from_run(run_dir, args.out, points=args.points)
             print(f"{run_dir}: {entry['samples']} samples -> {args.out / entry['file']}")
         return 0
 
     for name in args.objects:
-        get_object(name)  # unknown names fail here, in one line
-    if args.trajectories < 1 or args.duration <= 5.0 or args.points < 3:
-        raise ConfigError("--trajectories >= 1, --duration > 5 s (the grasp takes ~4 s) and --points >= 3")
+        get_object(name)  # unknown names fail here, in one line (the numbers were checked by argparse)
     trajectories = draw_trajectories(
         args.objects, args.trajectories, args.seed, args.duration, args.points, surface=args.surface
     )
@@ -543,10 +644,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     from twin.shape.dataset import DEFAULT_TARGET, load_dataset
     from twin.shape.train import FOLDS, train
 
-    if args.epochs < 1:
-        raise ConfigError("--epochs must be >= 1")
-    if args.validation is not None and not 0 < args.validation < 1:
-        raise ConfigError(f"--validation must be in (0, 1), got {args.validation}")
     if args.folds is not None and args.validation is not None:
         raise ConfigError("--folds and --validation: choose one way to hold trajectories out")
     metadata = {
@@ -746,19 +843,20 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     """`twin emulate hand|rig`: serve the twin-backed emulators until Ctrl-C (or --duration)."""
     import time
 
-    from hardware.bh262.emulator import make_hand_emulator
-    from hardware.bh262.firmware import SUPPORTED_BAUD
-    from hardware.rig_config import rig_toml
-    from hardware.rig_emulator import RigEmulator
-    from twin.sim.foam import get_object
+    from hardware.bh262.driver import SUPPORTED_BAUD
 
     if args.baud not in SUPPORTED_BAUD:
         raise ConfigError(f"--baud {args.baud}: not one of {', '.join(map(str, SUPPORTED_BAUD))}")
     where = args.port
-    if where != "pty" and not (where.startswith("tcp:") and where[4:].isdigit() and int(where[4:]) < 65536):
+    if where != "pty" and not (
+        where.startswith("tcp:") and where[4:].isascii() and where[4:].isdigit() and int(where[4:]) < 65536
+    ):
         raise ConfigError(f"--port {where!r}: expected pty or tcp:PORT (tcp:0 picks a free port)")
-    if args.duration is not None and not args.duration > 0:
-        raise ConfigError("--duration must be > 0 s")
+    from hardware.bh262.emulator import make_hand_emulator
+    from hardware.rig_config import rig_toml
+    from hardware.rig_emulator import RigEmulator
+    from twin.sim.foam import get_object
+
     object_name = None if args.object == "none" else args.object
     if object_name:
         get_object(object_name)  # unknown names fail here, in one line
@@ -806,6 +904,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     try:
         while time.monotonic() < deadline:
             time.sleep(0.1)
+            if emulator.failed():  # a serving thread died: say so and exit, never idle as if "ready"
+                from twin.interface.errors import DeviceError
+
+                raise DeviceError(f"the emulator stopped serving: {emulator.failed()}")
     except KeyboardInterrupt:
         pass
     finally:
@@ -819,7 +921,12 @@ def cmd_info(args: argparse.Namespace) -> int:
     from twin.recording import open_run
 
     run = open_run(args.run_dir)
+    meta = check_run_metadata(run.info, run.path / "run.json")
     summary = run.summary()
+    differ = [
+        {"stream": name, "readable": readable, "recorded": recorded}
+        for name, (recorded, readable) in run.sample_mismatches().items()
+    ]
     if args.json:
         print(
             json.dumps(
@@ -828,7 +935,9 @@ def cmd_info(args: argparse.Namespace) -> int:
                     "status": run.status,
                     "streams": summary,
                     "truncated": sorted(run.truncated),
-                    "metadata": run.metadata,
+                    "recorded_samples": run.info.get("samples"),
+                    "samples_differ": differ,
+                    "metadata": meta,
                 },
                 indent=2,
                 default=str,
@@ -840,23 +949,19 @@ def cmd_info(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     console = Console()
-    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {run.status}")
-    meta = run.metadata
+    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {escape(run.status)}")
     for key in ("backend", "experiment", "duration_s", "seed"):
         if key in meta:
-            value = (
-                meta[key]["name"]
-                if key == "experiment" and isinstance(value := meta[key], dict)
-                else meta[key]
-            )
-            console.print(f"  {key}: {value}")
+            value = experiment_name(meta) if key == "experiment" else meta[key]
+            console.print(f"  {key}: {escape(str(value))}")
     if meta.get("object"):
-        obj = meta["object"]
-        console.print(
-            f"  object: {obj['name']} ({obj['shape']}, E = {obj['young_pa']:g} Pa, nu = {obj['poisson']:g})"
-        )
+        console.print(f"  object: {escape(_object_summary(meta['object']))}")
     if meta.get("stereo_truth"):
-        console.print(f"  reconstruction vs truth: {_surface_summary(meta['stereo_truth'])}")
+        try:
+            truth = _surface_summary(meta["stereo_truth"])
+        except (KeyError, TypeError, ValueError):
+            raise ConfigError(f"{run.path / 'run.json'}: metadata.stereo_truth is incomplete") from None
+        console.print(f"  reconstruction vs truth: {truth}")
     table = Table(title="streams")
     for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)"):
         table.add_column(col, justify="right" if col != "stream" else "left")
@@ -878,7 +983,23 @@ def cmd_info(args: argparse.Namespace) -> int:
     console.print(fields)
     if run.truncated:
         console.print(f"[yellow]truncated streams (crash recovery): {', '.join(sorted(run.truncated))}")
+    never_closed = " (its last count: the run never closed)" if run.status == "running" else ""
+    for d in differ:
+        console.print(
+            f"[yellow]{d['stream']}: {d['readable']} samples readable, run.json records "
+            f"{d['recorded']}{never_closed}"
+        )
     return 0
+
+
+def _object_summary(obj: dict) -> str:
+    """name (shape, E, nu) of a run's object, with whichever of them run.json records."""
+    details = [obj["shape"]] if "shape" in obj else []
+    if "young_pa" in obj:
+        details.append(f"E = {obj['young_pa']:g} Pa")
+    if "poisson" in obj:
+        details.append(f"nu = {obj['poisson']:g}")
+    return f"{obj.get('name', '?')} ({', '.join(details)})"
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -918,14 +1039,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
     """`twin calibrate cameras`: stereo + camera-to-hand calibration on the twin (errors against its
     truth) or from image pairs on disk; writes the calibration file atomically."""
-    from experiments.calibrate_cameras import calibrate_sim, calibrate_views
-
     if args.views is not None and args.seed is not None:
         raise ConfigError("--seed is for the sim; --views calibrates from the images given")
     if args.out.is_dir():
         raise ConfigError(f"--out {args.out}: is a directory")
     if not args.out.parent.is_dir():
         raise ConfigError(f"--out {args.out}: no such directory {args.out.parent}")
+    if args.out.exists() and not args.force:
+        raise ConfigError(f"--out {args.out}: exists; choose another file or overwrite it with --force")
+    from experiments.calibrate_cameras import calibrate_sim, calibrate_views
+
     outcome = calibrate_views(args.views) if args.views is not None else calibrate_sim(seed=args.seed or 0)
     for line in outcome.summary():
         print(line)
@@ -957,7 +1080,10 @@ def cmd_view(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `twin` console script."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0), or an argument refused in one line (2): a status, as below
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     handlers = {
         "objects": cmd_objects,
         "info": cmd_info,
@@ -969,6 +1095,10 @@ def main(argv: list[str] | None = None) -> int:
         "sweep": cmd_sweep,
         "train": cmd_train,
     }
+    from twin.processes import sigterm_as_interrupt
+
+    previous = signal.getsignal(signal.SIGTERM)
+    sigterm_as_interrupt()  # `kill PID`, a batch system or `timeout` ends a command as Ctrl-C does
     try:
         if args.command == "run":
             return cmd_run_free(args) if args.experiment == "free" else cmd_run_compress(args)
@@ -978,7 +1108,7 @@ def main(argv: list[str] | None = None) -> int:
     except TwinError as exc:
         return _fail(str(exc))
     except (FileExistsError, PermissionError) as exc:
-        return _fail(str(exc))
+        return _fail(f"{exc.filename}: {exc.strerror}" if exc.filename and exc.strerror else str(exc))
     except ValueError as exc:  # RunFormatError: not a readable run directory
         from twin.recording import RunFormatError
 
@@ -986,8 +1116,19 @@ def main(argv: list[str] | None = None) -> int:
             return _fail(str(exc))
         raise
     except KeyboardInterrupt:
-        print("twin: interrupted; the run directory is marked 'interrupted'", file=sys.stderr)
-        return 130
+        print(f"twin: interrupted; {_INTERRUPTED.get(args.command, 'nothing was written')}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        with contextlib.suppress(ValueError, TypeError):  # not the main thread / a foreign handler
+            signal.signal(signal.SIGTERM, previous)
+
+
+_INTERRUPTED = {
+    "run": "the run directory is marked 'interrupted' and keeps what was recorded",
+    "sweep": "the finished trajectories are kept (run the same command again to resume)",
+    "emulate": "the emulator stopped",
+}
+"""What an interruption (Ctrl-C or SIGTERM) leaves, per command; the others write only at the end."""
 
 
 if __name__ == "__main__":

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from twin import units
+from twin.interface.errors import ConfigError
 from twin.recording import open_run
+from twin.recording.reader import Run, StreamData
 
 
 @dataclass(frozen=True)
@@ -75,16 +77,17 @@ def position_agreement(
     Both runs are compared on a's sample times, leaving `margin_s` at either end (where one run has
     no data after shifting) and the windows `exclude_s` (a's times) out.
     """
-    a, b = open_run(run_a).stream("hand"), open_run(run_b).stream("hand")
+    a, b = _hand_positions(open_run(run_a)), _hand_positions(open_run(run_b))
     pa = a.fields["position_counts"][:, :3].astype(float)
     pb = b.fields["position_counts"][:, :3].astype(float)
-    if len(a.t_s) < 2 or len(b.t_s) < 2:
-        raise ValueError("both runs need at least two hand samples")
     window = (a.t_s >= a.t_s[0] + margin_s) & (a.t_s <= a.t_s[-1] - margin_s)
     for t0, t1 in exclude_s:
         window &= ~((a.t_s >= t0) & (a.t_s <= t1))
     if not window.any():
-        raise ValueError("runs too short for the margin")
+        raise ConfigError(
+            f"{run_a}: {a.t_s[-1] - a.t_s[0]:.2f} s of hand samples: too short to compare "
+            f"(the comparison leaves {margin_s:g} s out at either end)"
+        )
     best = None
     for lag in np.arange(-max_lag_s, max_lag_s + lag_step_s / 2, lag_step_s):
         shifted = np.stack([np.interp(a.t_s, b.t_s - lag, pb[:, k]) for k in range(3)], axis=1)
@@ -102,9 +105,22 @@ def position_agreement(
     )
 
 
+def _hand_positions(run: Run) -> StreamData:
+    """The run's hand stream, with finger positions and at least two samples (ConfigError otherwise)."""
+    if "hand" not in run.streams or "position_counts" not in run.streams["hand"].fields:
+        raise ConfigError(f"{run.path}: no hand positions recorded; nothing to compare")
+    hand = run.stream("hand")
+    if len(hand) < 2:
+        raise ConfigError(f"{run.path}: {len(hand)} hand sample(s); a comparison needs at least two")
+    return hand
+
+
 def phase_changes_s(run: Path | str) -> list[float]:
-    """Times at which the procedure changed phase (from the command stream)."""
-    command = open_run(run).stream("command")
+    """Times at which the procedure changed phase (from the command stream; none without one)."""
+    opened = open_run(run)
+    if "command" not in opened.streams or "phase" not in opened.streams["command"].fields:
+        return []
+    command = opened.stream("command")
     phase = command.fields["phase"]
     return [float(command.t_s[i]) for i in np.flatnonzero(np.diff(phase) != 0) + 1]
 

@@ -96,7 +96,7 @@ def test_a_damaged_trajectory_file_is_named_in_one_line(local_dataset, tmp_path,
 def test_bad_sweep_input_is_one_line(tmp_path, capsys):
     for argv, message in (
         (["sweep", "--objects", "teapot", "--out", str(tmp_path / "x")], "unknown object 'teapot'"),
-        (["sweep", "--duration", "3", "--out", str(tmp_path / "x")], "--duration > 5 s"),
+        (["sweep", "--duration", "3", "--out", str(tmp_path / "x")], "--duration: must be a finite number"),
         (
             ["sweep", "--executor", "local", "--address", "ray://h:1", "--out", str(tmp_path / "x")],
             "--address",
@@ -193,10 +193,11 @@ def test_train_cross_validates_by_trajectory_and_keeps_a_hull_model_trained_on_a
     meta = json.loads((model_dir / "model.json").read_text())
     assert meta["target"] == "hull" and meta["cross_validation"]["folds"] == report["folds"]
     for argv, message in (
-        (["--folds", "1"], "folds must be 2 to 2"),
-        (["--folds", "0"], "folds must be 2 to 2"),
+        (["--folds", "1"], "argument --folds: must be an integer >= 2"),
+        (["--folds", "0"], "argument --folds: must be an integer >= 2"),
+        (["--folds", "3"], "folds must be 2 to 2"),
         (["--folds", "2", "--validation", "0.5"], "choose one way"),
-        (["--validation", "1.5"], "--validation must be in (0, 1)"),
+        (["--validation", "1.5"], "argument --validation: must be a finite number > 0 and < 1"),
         (["--target", "surface", "--folds", "2"], "one held-out split"),
     ):
         assert main(["train", str(out), "--object", "sphere", "--epochs", "5", *argv]) == 2, argv

@@ -26,6 +26,8 @@ from twin.identify.hand_dynamics import TERMS, HandDynamics, derivatives, identi
 from twin.identify.material import MappingError, MaterialMap
 from twin.identify.reaction import IdentificationError, ReactionFit, fit_kelvin_voigt, fit_reaction
 from twin.identify.signals import CONTACT_FORCE_N, FingerSignals, load_signals
+from twin.recording import open_run
+from twin.validation import check_run_metadata
 
 WINDOW_SETTLE_S = 0.5
 """Compression samples skipped after the grasp settles (the balance servo's last transient)."""
@@ -215,6 +217,8 @@ def identify_run(
     """Identify eq. 4 and the modulus from a compress run (and optionally a free-motion run).
 
     `shape` and `size_m` describe the object where the run does not (a hardware run)."""
+    for path in (run, free_run) if free_run is not None else (run,):  # metadata types: one line if not
+        check_run_metadata(open_run(path).info, Path(path) / "run.json")
     signals = load_signals(run)
     if shape is not None and size_m is not None:
         signals.metadata = signals.metadata | {

@@ -106,9 +106,7 @@ def _trajectories(
     index_path = directory / "index.json"
     if not index_path.is_file():
         raise ConfigError(f"{directory}: not a sweep dataset (no index.json); make one with `twin sweep`")
-    entries = [
-        e for e in json.loads(index_path.read_text())["trajectories"] if e["object_name"] == object_name
-    ]
+    entries = [e for e in _index_entries(index_path) if e["object_name"] == object_name]
     if not entries:
         raise ConfigError(f"{directory}: no trajectories of '{object_name}'")
     parts = []
@@ -132,10 +130,34 @@ def _trajectories(
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
             if isinstance(exc, ConfigError):
                 raise
-            raise ConfigError(f"{path}: not a readable trajectory ({exc}); rerun the sweep") from None
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+            raise ConfigError(f"{path}: not a readable trajectory ({reason}); rerun the sweep") from None
     if not parts:
         raise ConfigError(f"{directory}: the trajectories of '{object_name}' hold no samples")
     return parts
+
+
+_ENTRY_KEYS = {"object_name": str, "file": str, "index": int}
+
+
+def _index_entries(index_path: Path) -> list[dict]:
+    """index.json's trajectory entries, each with a name, a file and an index; ConfigError (one line,
+    naming the file and the entry) for anything else."""
+    try:
+        index = json.loads(index_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"{index_path}: not readable JSON ({exc}); rerun the sweep") from None
+    entries = index.get("trajectories") if isinstance(index, dict) else None
+    if not isinstance(entries, list):
+        raise ConfigError(f"{index_path}: no 'trajectories' list; not a sweep index (rerun the sweep)")
+    for k, entry in enumerate(entries):
+        for key, kind in _ENTRY_KEYS.items():
+            value = entry.get(key) if isinstance(entry, dict) else None
+            if not isinstance(value, kind) or isinstance(value, bool):
+                raise ConfigError(
+                    f"{index_path}: trajectories[{k}].{key}: expected {kind.__name__}, got {value!r:.60}"
+                )
+    return entries
 
 
 Samples = TypeVar("Samples", ShapeData, SurfaceData)

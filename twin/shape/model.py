@@ -6,12 +6,17 @@ The 3-D variant is the same network with one output per point (a height on its g
 from __future__ import annotations
 
 import json
+import pickle
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from numpy.typing import NDArray
+
+from twin.interface.errors import ConfigError
+from twin.validation import check_number
 
 HIDDEN = 30
 WEIGHTS_FILE = "model.pt"
@@ -104,15 +109,51 @@ class ShapeModel:
 
     @classmethod
     def load(cls, directory: Path | str) -> ShapeModel:
-        """Read a saved model; ValueError names the file when it is not one."""
+        """Read a saved model; ConfigError (a ValueError) in one line names the directory and what is
+        wrong with it, whatever garbage the files hold (truncated, not JSON, missing keys, wrong types)."""
         directory = Path(directory)
         try:
-            meta = json.loads((directory / META_FILE).read_text())
-            net = ShapeMLP(int(meta["points"]), int(meta.get("hidden", HIDDEN)), int(meta.pop("dims", 2)))
-            net.load_state_dict(torch.load(directory / WEIGHTS_FILE, weights_only=True))
-        except (OSError, ValueError, KeyError, RuntimeError) as exc:
-            raise ValueError(
-                f"{directory}: not a trained shape model ({type(exc).__name__}: {exc})"
-            ) from None
-        stats = {k: np.asarray(meta.pop(k), dtype=np.float64) for k in ("x_mean", "x_std", "y_mean", "y_std")}
+            return cls._load(directory)
+        except _UNREADABLE as exc:
+            reason = exc if isinstance(exc, ConfigError) else f"{type(exc).__name__}: {exc}"
+            text = " ".join(str(reason).split())
+            raise ConfigError(f"{directory}: not a trained shape model ({text[:200]})") from None
+
+    @classmethod
+    def _load(cls, directory: Path) -> ShapeModel:
+        meta = json.loads((directory / META_FILE).read_text(encoding="utf-8"))
+        if not isinstance(meta, dict):
+            raise ConfigError(f"{META_FILE} holds {type(meta).__name__}, not an object")
+        points = int(check_number(meta.get("points"), "points", kind=int, min=1, max=100_000))
+        hidden = int(check_number(meta.get("hidden", HIDDEN), "hidden", kind=int, min=1, max=10_000))
+        dims = int(check_number(meta.pop("dims", 2), "dims", kind=int, min=1, max=2))
+        sizes = {"x_mean": 6, "x_std": 6, "y_mean": dims * points, "y_std": dims * points}
+        stats = {}
+        for key, size in sizes.items():
+            values = np.asarray(meta.pop(key), dtype=np.float64)
+            if values.shape != (size,) or not np.isfinite(values).all():
+                raise ConfigError(f"{key}: expected {size} finite numbers, got shape {values.shape}")
+            if key.endswith("_std") and not (values > 0).all():
+                raise ConfigError(f"{key}: standard deviations must be > 0")
+            stats[key] = values
+        net = ShapeMLP(points, hidden, dims)
+        state = torch.load(directory / WEIGHTS_FILE, weights_only=True)
+        if not isinstance(state, dict):
+            raise ConfigError(f"{WEIGHTS_FILE} holds {type(state).__name__}, not a state dict")
+        net.load_state_dict(state)
         return cls(net=net, metadata=meta, **stats)
+
+
+_UNREADABLE = (
+    OSError,
+    ValueError,  # ConfigError, JSONDecodeError, UnicodeDecodeError
+    KeyError,
+    TypeError,
+    AttributeError,
+    IndexError,
+    RuntimeError,  # torch: a truncated archive, a state dict of other shapes
+    EOFError,
+    pickle.UnpicklingError,
+    zipfile.BadZipFile,
+)
+"""What reading a damaged model directory raises."""

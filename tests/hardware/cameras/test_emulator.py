@@ -132,7 +132,7 @@ def test_rig_file_stereo_section_round_trips(tmp_path: Path):
         ('right = "r"', r"\[stereo\]\.left: missing"),
         ("left = true\nright = 1", r"\[stereo\]\.left: expected a device index or a string"),
         ('left = 0\nright = 1\nbackend = "dc1394"', r"\[stereo\]\.backend: 'dc1394' is not one of"),
-        ("left = 0\nright = 1\nrate_hz = 0", r"\[stereo\]: stereo rate_hz must be > 0"),
+        ("left = 0\nright = 1\nrate_hz = 0", r"\[stereo\]\.rate_hz must be a finite number > 0"),
         ('left = 0\nright = 1\nrate_hz = "fast"', r"\[stereo\]\.rate_hz: expected float"),
         ("left = 0\nright = 1\nexposure = 3", r"\[stereo\]: unknown key\(s\) exposure"),
         ('left = 0\nright = 1\ncalibration = "nope.json"', r"\[stereo\]\.calibration: .*nope\.json: no such"),

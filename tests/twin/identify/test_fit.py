@@ -68,8 +68,8 @@ def test_a_run_that_does_not_describe_its_object_cannot_be_fitted(free_run):
     ("argv", "message"),
     [
         (["fit", "/nonexistent/run"], "not a run directory"),
-        (["fit", "{run}", "--workers", "0"], "--workers must be >= 1"),
-        (["fit", "{run}", "--young", "-3"], "--young must be > 0 Pa"),
+        (["fit", "{run}", "--workers", "0"], "argument --workers: must be an integer >= 1"),
+        (["fit", "{run}", "--young", "-3"], "argument --young: must be a finite number > 0"),
     ],
 )
 def test_bad_fit_input_is_one_line(argv, message, sphere_run, capsys):

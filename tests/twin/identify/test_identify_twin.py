@@ -142,7 +142,7 @@ def test_cli_writes_results_figure_and_rerun_file(sphere_run, free_run, tmp_path
         (["identify", "{run}", "--shape", "sphere"], "--shape and --size-mm go together"),
         (
             ["identify", "{run}", "--free", "/nonexistent/free"],
-            "--free /nonexistent/free: not a run directory",
+            "argument --free: /nonexistent/free: not a run directory",
         ),
     ],
 )

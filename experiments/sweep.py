@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -370,6 +371,8 @@ def sweep(
         raise ConfigError(f"unknown executor '{executor}' (choose from {', '.join(EXECUTORS)})")
     if workers < 1:
         raise ConfigError("--workers must be >= 1")
+    if executor == "ray" and address is not None:
+        check_ray_address(address)
     out_dir.mkdir(parents=True, exist_ok=True)
     index = {e["file"]: e for e in read_index(out_dir)}
     todo = [t for t in trajectories if not (out_dir / f"{t.name}.npz").exists()]
@@ -408,6 +411,28 @@ def _run_local(todo: list[Trajectory], out_dir: Path, workers: int, address: str
         futures = [pool.submit(run_trajectory, t, str(out_dir)) for t in todo]
         for f in as_completed(futures):
             yield f.result()
+
+
+RAY_PROBE_TIMEOUT_S = 5.0
+"""How long the cluster's head gets to accept a connection before `--address` is refused: ray.init
+itself retries a dead address silently for minutes."""
+
+
+def check_ray_address(address: str) -> None:
+    """ConfigError unless `address` (host:port or ray://host:port; 'auto' passes) accepts a TCP connection."""
+    if address == "auto":
+        return
+    where = address.removeprefix("ray://")
+    host, _, port = where.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--address {address!r}: expected host:port, ray://host:port or auto")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_PROBE_TIMEOUT_S).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ConfigError(
+            f"--address {address}: no Ray cluster answers there ({reason} within {RAY_PROBE_TIMEOUT_S:g} s)"
+        ) from None
 
 
 def _run_ray(todo: list[Trajectory], out_dir: Path, workers: int, address: str | None) -> Iterable[dict]:

@@ -606,7 +606,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """`twin sweep`: run (or resume) a dataset of trajectories, with a progress bar."""
-    from experiments.sweep import draw_trajectories, sweep, trajectory_from_run
+    from experiments.sweep import check_ray_address, draw_trajectories, sweep, trajectory_from_run
     from twin.sim.foam import get_object
 
     if args.from_runs:
@@ -617,6 +617,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     for name in args.objects:
         get_object(name)  # unknown names fail here, in one line (the numbers were checked by argparse)
+    if args.address is not None:
+        if args.executor != "ray":
+            raise ConfigError("--address is for --executor ray")
+        check_ray_address(args.address)  # before the progress bar: ray.init would retry for minutes
     trajectories = draw_trajectories(
         args.objects, args.trajectories, args.seed, args.duration, args.points, surface=args.surface
     )

@@ -102,10 +102,17 @@ def test_bad_sweep_input_is_one_line(tmp_path, capsys):
             "--address",
         ),
         (["train", str(tmp_path / "none"), "--object", "sphere"], "not a sweep dataset"),
+        # nothing listens on port 1 of this machine: refused at once, not after ray.init's minutes of retries
+        (
+            ["sweep", "--executor", "ray", "--address", "127.0.0.1:1", "--out", str(tmp_path / "x")],
+            "no Ray cluster answers there",
+        ),
+        (["sweep", "--executor", "ray", "--address", "headnode", "--out", str(tmp_path / "x")], "host:port"),
     ):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "x").exists()
     with pytest.raises(ConfigError, match="unknown executor"):
         sweep([], tmp_path / "y", executor="dask")
 

@@ -35,6 +35,7 @@ def test_objects_json_lists_the_library():
     assert all(o["young_pa"] > 0 and 0 <= o["poisson"] < 0.5 for o in objects)
 
 
+@pytest.mark.slow
 def test_run_compress_end_to_end_then_info_and_rrd(tmp_path: Path):
     out = tmp_path / "run"
     result = twin(
@@ -66,6 +67,7 @@ def test_run_compress_end_to_end_then_info_and_rrd(tmp_path: Path):
     assert np.allclose(values, recorded["position_counts"][:, :3])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(LIBRARY))
 def test_every_library_foam_runs_10_s_headless(name: str, tmp_path: Path):
     out = tmp_path / name
@@ -82,6 +84,7 @@ def test_every_library_foam_runs_10_s_headless(name: str, tmp_path: Path):
     assert (torque[-60:] > 0.05).all()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -226,6 +229,7 @@ def test_fit_refuses_an_unknown_object_and_a_size_without_one(short_run: Path):
     assert not (short_run / "fit").exists()
 
 
+@pytest.mark.slow
 def test_fit_takes_object_and_size_for_a_run_that_does_not_describe_its_object(short_run: Path, tmp_path):
     """A hardware run records no object: --object/--size-mm name it, and the replays start (the old
     code answered 'name it with --object' whatever was given). Stopped at the first replay."""

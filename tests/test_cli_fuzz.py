@@ -196,6 +196,7 @@ def fuzz(test: str, examples: int, strategy: st.SearchStrategy, check) -> int:
     return cases
 
 
+@pytest.mark.slow
 def test_bad_numbers_are_refused_in_one_line(workdir: Path, record_property):
     def check(argv: list[str]) -> None:
         line = assert_refused(argv, workdir, "numbers")
@@ -239,6 +240,7 @@ def path_cases(draw: st.DrawFn) -> list[str]:
     return [*_argv(path), f"{action.option_strings[-1]}={bad}"]
 
 
+@pytest.mark.slow
 def test_bad_paths_are_refused_in_one_line(workdir: Path, record_property):
     cases = fuzz("paths", PATH_CASES, path_cases(), lambda a: assert_refused(a, workdir, "paths"))
     record_property("cases", cases)

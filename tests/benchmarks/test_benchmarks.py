@@ -6,6 +6,7 @@ import pytest
 from benchmarks import foam_discretization, realtime, serial_cycle, tactile_sensors
 
 
+@pytest.mark.slow
 def test_foam_study_forces_grow_with_depth_and_compare_to_the_reference():
     results = foam_discretization.run(quick=True)
     ref_forces = results["reference"]["hold_force_n"]
@@ -27,6 +28,7 @@ def test_depth_profile_holds_then_cycles():
     assert f(foam_discretization.total_time_s() - 1e-6) < 0.01
 
 
+@pytest.mark.slow
 def test_realtime_rows_are_positive_ratios():
     results = realtime.run(quick=True)
     (row,) = results["rows"]
@@ -59,6 +61,7 @@ def test_why_the_pads_bin_contact_forces():
     assert flex["tactile_nonzero"] == 0  # the native tactile sensor does not see a flexcomp
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
 def test_stereo_benchmarks_report_speed_accuracy_and_calibration():
     from benchmarks import stereo_calibration, stereo_pipeline, stereo_run

@@ -148,6 +148,7 @@ def test_bad_profiles_are_refused(kwargs):
         CompressProfile(**kwargs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("size_m, young_pa", [(0.070, 16_121.0), (0.065, 15_510.0)])
 def test_the_touch_breaks_every_clutch_away_whatever_the_noise_seed(tmp_path, size_m, young_pa):
     """Soft spheres where the clutch state used to depend on the gauge noise: at 70 mm and 16.1 kPa

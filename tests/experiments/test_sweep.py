@@ -40,6 +40,7 @@ def local_dataset(tmp_path_factory):
     return out, trajectories, sweep(trajectories, out, workers=2)
 
 
+@pytest.mark.slow
 def test_a_local_sweep_writes_whole_files_and_an_index(local_dataset):
     out, trajectories, entries = local_dataset
     assert [e["file"] for e in entries] == [f"{t.name}.npz" for t in trajectories]
@@ -64,6 +65,7 @@ def test_a_rerun_skips_finished_trajectories(local_dataset):
     assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")} == stamps
 
 
+@pytest.mark.slow
 def test_ray_produces_the_local_dataset(local_dataset, tmp_path):
     out, trajectories, _ = local_dataset
     entries = sweep(trajectories, tmp_path / "ray", workers=2, executor="ray")
@@ -117,6 +119,7 @@ def test_bad_sweep_input_is_one_line(tmp_path, capsys):
         sweep([], tmp_path / "y", executor="dask")
 
 
+@pytest.mark.slow
 def test_a_recorded_camera_run_becomes_a_dataset_trajectory(tmp_path, capsys):
     """The hardware path: recorded frames (as JPEG) through the same contour code, paired with the
     hand readings; shown on a sim run recorded with --cameras."""
@@ -145,6 +148,7 @@ def test_a_recorded_camera_run_becomes_a_dataset_trajectory(tmp_path, capsys):
     assert "not a run directory" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_surface_sweep_keeps_heights_near_the_true_surface_and_trains_the_3d_variant(
     local_dataset, tmp_path, capsys
 ):

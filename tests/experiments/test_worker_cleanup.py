@@ -71,6 +71,7 @@ def _assert_all_gone(pids: list[int], timeout_s: float = 10.0) -> None:
     assert not left, left
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and the parent-death signal")
 def test_sigterm_on_fit_interrupts_it_and_ends_its_workers(short_run: Path, tmp_path: Path):
     proc, pids = _start_with_workers(

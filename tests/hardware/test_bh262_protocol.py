@@ -95,6 +95,7 @@ command = st.text(
 ).filter(lambda s: "=> " not in s)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(command, st.lists(printable_line, max_size=4), OPTIONS)
 def test_reply_round_trip(cmd, lines, options):
@@ -103,6 +104,7 @@ def test_reply_round_trip(cmd, lines, options):
     assert reply.echo == cmd and list(reply.lines) == lines
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(max_size=200), st.sampled_from(["HI", "1FGET P", "C", ""]), OPTIONS)
 def test_fuzz_parse_reply_only_declared_errors(raw, cmd, options):
@@ -110,6 +112,7 @@ def test_fuzz_parse_reply_only_declared_errors(raw, cmd, options):
         parse_reply(raw, cmd, options)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(max_size=300))
 def test_fuzz_split_reply_only_declared_errors(raw):
@@ -137,6 +140,7 @@ RANGES = {"LCV": (-128, 127), "LCPG": (0, 255), "LCT": (-32768, 32767), "LFV": (
           "LFAP": (0, 65535), "LFDP": (-128, 127), "LFBP": (0, 65535), "LFAIN": (0, 255)}  # fmt: skip
 
 
+@pytest.mark.slow
 @FUZZ
 @given(configs, st.data())
 def test_realtime_blocks_round_trip(cfg, data):
@@ -152,6 +156,7 @@ def test_realtime_blocks_round_trip(cfg, data):
     assert fb.fields == fields and fb.temperature == temperature
 
 
+@pytest.mark.slow
 @FUZZ
 @given(configs, st.binary(max_size=40))
 def test_fuzz_decode_feedback_only_declared_errors(cfg, raw):
@@ -163,6 +168,7 @@ def test_fuzz_decode_feedback_only_declared_errors(cfg, raw):
     assert all(len(v) == len(cfg.motors) for v in fb.fields.values())
 
 
+@pytest.mark.slow
 @FUZZ
 @given(configs, st.binary(max_size=40))
 def test_fuzz_decode_control_only_declared_errors(cfg, raw):

@@ -164,6 +164,7 @@ def peer() -> _Peer:
     return _peer
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(max_size=120), st.sampled_from(["1FGET P", "HI", "PGET BAUD", "T"]))
 def test_fuzz_supervisory_replies_only_declared_errors(raw, command):
@@ -174,6 +175,7 @@ def test_fuzz_supervisory_replies_only_declared_errors(raw, command):
         p.bh.command(command)
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(min_size=DEFAULT_REALTIME.feedback_size, max_size=DEFAULT_REALTIME.feedback_size))
 def test_fuzz_realtime_feedback_only_declared_errors(raw):

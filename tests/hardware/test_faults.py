@@ -66,6 +66,7 @@ RECOVERED = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("faults", RECOVERED)
 def test_recoverable_faults_lose_no_sample(faults: str, tmp_path: Path):
     run, error, emulator = run_with_faults(faults, tmp_path / "run")
@@ -94,6 +95,7 @@ SAFE_STOPS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("faults", "message"), SAFE_STOPS)
 def test_unrecoverable_faults_stop_safely_with_the_data_intact(faults: str, message: str, tmp_path: Path):
     run, error, _ = run_with_faults(faults, tmp_path / "run")

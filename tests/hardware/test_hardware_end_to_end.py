@@ -57,6 +57,7 @@ def _emulate_rig(tmp_path: Path, *extra: str):
         proc.wait(timeout=10)
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_with_cameras: Path, tmp_path):
     """The whole rig against emulators: hand, pads and the cameras' MJPEG streams, one flag."""
@@ -76,6 +77,7 @@ def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_w
     assert (lo > [-0.045, -0.045, 0.07]).all() and (hi < [0.045, 0.045, 0.16]).all()
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     sim = twin("run", "compress", "--duration", "10", "--out", "sim", "--no-progress", cwd=tmp_path)
@@ -119,6 +121,7 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert report["mismatches"] == [] and report["max_relative_error_outside_contact"] < 0.02
 
 
+@pytest.mark.slow
 def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Path):
     with make_hand_emulator("block") as emulator:
         pty = emulator.serve_pty()
@@ -173,6 +176,7 @@ def test_bad_hardware_input_one_line_nothing_written(args, message, tmp_path: Pa
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 def test_bad_rig_files_are_refused_in_one_line(tmp_path: Path):
     cases = {
         "[hand]\nport = 5\n": "[hand].port: expected str",

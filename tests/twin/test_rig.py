@@ -106,6 +106,7 @@ def test_an_interrupted_run_says_so_and_that_the_hand_acknowledged_its_idle(tmp_
     assert run.corrupt_streams() == {} and run.sample_mismatches() == {}
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_watchdog_stop_on_a_silent_hand_says_the_idle_failed(tmp_path):
     """The emulated hand stops answering for good (mute): the watchdog stops the run, the idle gets no
@@ -140,6 +141,7 @@ def test_a_garbage_tactile_table_is_refused_before_the_hand_is_touched(tmp_path)
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_hardware_loop_that_misses_its_rate_says_so(tmp_path):
     """A procedure too slow for 30 Hz (60 ms a reading): the run completes, and run.json, the outcome

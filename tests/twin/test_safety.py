@@ -41,6 +41,7 @@ def within_limits(cmd: HandCommand) -> bool:
     )
 
 
+@pytest.mark.slow
 @settings(max_examples=3000, deadline=None)
 @given(positions, velocities, st.one_of(st.none(), readings))
 def test_nothing_outside_the_limits_gets_through(pos, velocity, reading):

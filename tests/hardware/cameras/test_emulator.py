@@ -153,6 +153,7 @@ def test_bad_stereo_sections_are_refused_in_one_line(body: str, message: str, tm
         assert isinstance(info.value, StereoCalibrationError)
 
 
+@pytest.mark.slow
 def test_hardware_backend_reads_the_rig_emulators_cameras(tmp_path: Path):
     with RigEmulator("block", cameras=True) as rig:
         rig.serve("tcp:0")

@@ -190,6 +190,7 @@ def _accounted(decoder: FrameDecoder, total: int) -> bool:
     return decoder.frames * FRAME_SIZE + decoder.discarded_bytes + decoder.buffered == total
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(max_size=2000))
 def test_fuzz_random_bytes_only_yield_genuine_frames(blob):
@@ -221,6 +222,7 @@ def test_the_stream_program_reaches_every_item_kind():
     assert [f.sequence for f in got] == [1, 3, 5]
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(min_size=48, max_size=600))
 def test_fuzz_every_valid_frame_survives_garbage_truncation_and_corruption(blob):
@@ -240,6 +242,7 @@ def test_fuzz_every_valid_frame_survives_garbage_truncation_and_corruption(blob)
         assert decoder.discarded_bytes == 0 and decoder.bad_frames == 0 and decoder.buffered == 0
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.binary(min_size=18, max_size=64))
 def test_fuzz_encode_round_trips_or_refuses(blob):

@@ -15,6 +15,7 @@ from twin.sim.replay import Commands, replay
 pytestmark = pytest.mark.xdist_group("realtime")  # two replay processes: keep off the wall-clock tests
 
 
+@pytest.mark.slow
 def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
     run = Run(sphere_run)
     commands = Commands.from_run(run, until_s=fit_window_s(run))
@@ -31,6 +32,7 @@ def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
     assert np.sum(residuals(measured, stiffer) ** 2) > 3 * np.sum(residuals(measured, sim) ** 2)
 
 
+@pytest.mark.slow
 def test_the_fit_finds_the_modulus_within_3_percent_and_holds_what_the_run_cannot_tell(
     sphere_run, tmp_path, capsys
 ):
@@ -64,6 +66,7 @@ def test_a_run_that_does_not_describe_its_object_cannot_be_fitted(free_run):
         fit_run(free_run, names=("stiffness",))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -143,6 +143,7 @@ def test_a_replaced_run_directory_is_noticed_at_close_too(tmp_path):
     assert os.listdir(run_dir) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("replace", [False, True])
 def test_twin_run_with_its_out_directory_removed_mid_run_fails_in_one_line(tmp_path, replace):
     """`twin run compress` whose --out directory is deleted (or deleted and made again by someone

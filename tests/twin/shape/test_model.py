@@ -56,6 +56,7 @@ def test_fast_numpy_prediction_equals_torch_and_survives_save_load(tmp_path):
         ShapeModel.load(tmp_path / "bad")
 
 
+@pytest.mark.slow
 def test_the_network_learns_a_nonlinear_contour_and_beats_the_baselines():
     result = train(_synthetic(), epochs=1500, seed=0)
     errors = {e.name.split()[0]: e.error_px for e in result.evaluations}
@@ -65,6 +66,7 @@ def test_the_network_learns_a_nonlinear_contour_and_beats_the_baselines():
     assert mm["network"] == pytest.approx(0.5 * errors["network"], rel=1e-6)  # the data's 0.5 mm/px
 
 
+@pytest.mark.slow
 def test_cross_validation_scores_every_trajectory_on_networks_that_never_saw_it():
     data = _synthetic()
     # trajectory 5 is unlike the others (its torques 0.3 N*m higher, its contour 4 px to the right):

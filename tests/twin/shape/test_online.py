@@ -27,6 +27,7 @@ def model_dir(tmp_path):
     return model.save(tmp_path / "model")
 
 
+@pytest.mark.slow
 def test_a_run_predicts_every_hand_sample_and_records_the_measured_contour(model_dir, tmp_path):
     out = tmp_path / "run"
     argv = [

@@ -66,6 +66,7 @@ def test_a_library_object_steps_cleanly():
     assert backend.world.warnings() == {}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("override", ["young_pa=1e30", "damping=1e20"])
 def test_a_run_on_a_diverging_object_ends_failed_with_one_line(tmp_path: Path, override: str):
     """Once an endless loop at 100 % CPU (`twin run compress --young 1e308`; the CLI now refuses such

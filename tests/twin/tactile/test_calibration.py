@@ -42,6 +42,7 @@ def test_simulated_lines_have_a_realistic_spread_and_calibration_error():
     assert 0 < err_kpa.max() < 2.0  # the 7 noisy points leave a small error, as on a real pad
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(st.lists(st.integers(0, TAXEL_COUNT_MAX - 1), min_size=162, max_size=162))
 def test_counts_to_kpa_to_counts_round_trips_within_one_lsb(counts):

@@ -19,6 +19,7 @@ from twin.tactile.layout import FINGERTIP_PADS, LAYOUT
 TIPS = [LAYOUT.pad_names.index(p) for p in FINGERTIP_PADS]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(LIBRARY))
 def test_fingertip_reaction_force_matches_the_contact_force(name: str, tmp_path: Path):
     backend = SimBackend(get_object(name), seed=1)
@@ -47,6 +48,7 @@ def test_fingertip_reaction_force_matches_the_contact_force(name: str, tmp_path:
     assert errors[-1] < 0.20, f"{name}: worst eq. 6 error {errors[-1]:.1%} over {checked} scans"
 
 
+@pytest.mark.slow
 def test_every_run_carries_the_tactile_stream_raw_and_in_kpa(tmp_path: Path):
     run_dir = tmp_path / "run"
     run_experiment(

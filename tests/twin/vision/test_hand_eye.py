@@ -199,6 +199,7 @@ def twin(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([*TWIN, *args], capture_output=True, text=True, env=env, timeout=300)
 
 
+@pytest.mark.slow
 def test_cli_calibrates_on_the_twin_and_reports_errors(tmp_path: Path):
     out = tmp_path / "cal" / "stereo.json"
     bad = twin("calibrate", "cameras", "--out", str(out))

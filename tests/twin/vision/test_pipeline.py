@@ -32,6 +32,7 @@ def camera_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_stereo_stream_at_30_fps_with_frames_and_surface(camera_run: Path):
     run = open_run(camera_run)
     stereo = run.stream("stereo")
@@ -94,6 +95,7 @@ def test_corrupt_calibration_file_names_file_and_line(tmp_path: Path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_reconstruction_accuracy_against_the_twin_truth(camera_run: Path):
     """Acceptance: the deforming block reconstructed within 1.5 mm (median) covering >= 60 % of its
     visible surface, scored per frame against the true surface at that instant and summarized per run."""
@@ -110,6 +112,7 @@ def test_reconstruction_accuracy_against_the_twin_truth(camera_run: Path):
     assert (truth["visible_px"][grasped] < truth["visible_px"][0]).all()  # the occlusion is real
 
 
+@pytest.mark.slow
 def test_runs_with_cameras_are_deterministic_for_a_seed():
     """Frames render on their own thread and reconstruct on another; the result must not depend on it."""
     from experiments.compress import CompressController
@@ -136,6 +139,7 @@ def test_runs_with_cameras_are_deterministic_for_a_seed():
     assert first != other  # the seed reaches the cameras' noise
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_the_frames_the_vision_worker_finished(tmp_path: Path):
     import signal
     import time

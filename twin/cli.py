@@ -444,10 +444,19 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
 
 
 def _print_completion(outcome) -> None:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
-    """'run complete' on stdout, and each of the run's warnings (a loop that missed its rate) on stderr."""
+    """'run complete' on stdout; on stderr each of the run's warnings (a loop that missed its rate) and
+    how many hand cycles the driver recovered (each is listed in run.json)."""
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
     for warning in outcome.warnings:
         print(f"twin: warning: {warning}", file=sys.stderr)
+    meta = json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
+    recoveries = meta.get("hand_recoveries") or []
+    if recoveries:
+        print(
+            f"twin: warning: the hand driver recovered {len(recoveries)} cycle(s) "
+            f"(run.json: metadata.hand_recoveries); first: {recoveries[0]}",
+            file=sys.stderr,
+        )
 
 
 def _hand_backend(args: argparse.Namespace, foam):  # noqa: ANN001

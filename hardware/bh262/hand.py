@@ -149,13 +149,15 @@ class BH8SerialHand(Hand):
         self._idled = self._idle_failed = False
 
     def _disconnect(self) -> None:
+        reported = self._idle_failed  # the rig's safe stop already said the idle failed
         try:
             if not self._idled:  # once T was acknowledged (the rig's safe stop) it need not go again
                 self._idle(tries=1 if self._idle_failed else IDLE_TRIES)
             if self.bh.baud != self.port.baud:  # leave the hand at the rate the next session expects
                 self.bh.set_baud(self.port.baud)
         except DeviceError as exc:
-            log.warning("could not idle the hand or restore its baud rate on disconnect: %s", exc)
+            if not reported:  # once is enough: the run's error already says the idle failed
+                log.warning("could not idle the hand or restore its baud rate on disconnect: %s", exc)
         finally:
             self.bh.close()
 
@@ -178,7 +180,9 @@ class BH8SerialHand(Hand):
                 last = exc
                 self._resync_needed = True
                 self.recoveries.append(f"{type(exc).__name__}: {exc}")
-                log.warning("hand feedback lost (%s); re-entering RealTime mode", exc)
+                # INFO, not WARNING: every recovered cycle goes into run.json (hand_recoveries), and
+                # the CLI sums them up in one line; a failure's own line says the rest
+                log.info("hand feedback lost (%s); re-entering RealTime mode", exc)
         else:
             raise WatchdogError(
                 f"no valid feedback from the hand for {self.watchdog_cycles} cycles in a row (last: {last})"

@@ -380,3 +380,27 @@ def test_rig_messages_name_the_file_once(tmp_path: Path):
     rig.write_text("[hand]\nbaud = 9600\n")
     result = twin("run", "compress", "--backend", "hardware", "--rig", str(rig), "--no-progress")
     assert one_line(result, "[hand] settings given without a port").count("noport.toml") == 1
+
+
+@pytest.mark.xdist_group("realtime")
+def test_a_hardware_run_that_recovered_cycles_says_so_in_one_warning_line(tmp_path: Path, capsys):
+    # drop@31: the emulator swallows one reply; the driver re-enters RealTime mode and loses no sample.
+    # The recovery is listed in run.json; the terminal gets one summary line, not the driver's log.
+    out = tmp_path / "hw"
+    argv = ["run", "compress", "--backend", "hardware", "--hand", "bh8emu://?faults=drop@31"]
+    assert main([*argv, "--duration", "2", "--out", str(out), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "run complete" in captured.out
+    recovered = open_run(out).metadata["hand_recoveries"]
+    assert len(recovered) >= 1
+    warnings = [line for line in captured.err.splitlines() if line.startswith("twin: warning:")]
+    assert len(warnings) == 1 and f"recovered {len(recovered)} cycle(s)" in warnings[0], captured.err
+    assert "hand feedback lost" not in captured.err
+
+
+def test_a_bad_emulator_url_is_one_line_naming_the_url_once(tmp_path: Path, capsys):
+    argv = ["run", "compress", "--backend", "hardware", "--hand", "bh8emu://?baud=fast"]
+    assert main([*argv, "--duration", "2", "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.count("bh8emu://?baud=fast") == 1, err
+    assert not (tmp_path / "x").exists()

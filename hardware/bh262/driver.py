@@ -125,7 +125,8 @@ class BH262:
                 self.settings.url, baudrate=self.baud, timeout=self.settings.timeout_s, write_timeout=2.0
             )
         except (serial.SerialException, ValueError) as exc:
-            raise DeviceError(f"cannot open the hand's port {self.settings.url}: {exc}") from None
+            reason = str(exc).removeprefix(f"{self.settings.url}: ")  # the URL handlers name it too
+            raise DeviceError(f"cannot open the hand's port {self.settings.url}: {reason}") from None
         try:
             self.resync()
         except HandTimeoutError:

@@ -946,6 +946,8 @@ def cmd_info(args: argparse.Namespace) -> int:
                 {
                     "path": str(run.path),
                     "status": run.status,
+                    "error": run.info.get("error"),
+                    "warnings": run.warnings,
                     "streams": summary,
                     "truncated": sorted(run.truncated),
                     "recorded_samples": run.info.get("samples"),
@@ -963,6 +965,10 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     console = Console()
     console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {escape(run.status)}")
+    if isinstance(run.info.get("error"), str):
+        console.print(f"  [red]error: {escape(run.info['error'])}")
+    for warning in run.warnings:
+        console.print(f"  [yellow]warning: {escape(str(warning))}")
     for key in ("backend", "experiment", "duration_s", "seed"):
         if key in meta:
             value = experiment_name(meta) if key == "experiment" else meta[key]

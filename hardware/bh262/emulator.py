@@ -200,11 +200,11 @@ class SerialSession:
         t = max(time.monotonic(), self._tx_end)
         for i in range(0, len(data), chunk):
             part = data[i : i + chunk]
+            t += len(part) * self._byte_s
+            self._sleep_until(t)  # a byte reaches the host once it has crossed the wire, not before
             if not self.link.write(part, time.monotonic() + WRITE_TIMEOUT_S):
                 self._tx_end = time.monotonic()
                 return
-            t += len(part) * self._byte_s
-            self._sleep_until(t)
         self._tx_end = t
 
     # --- the firmware --------------------------------------------------------------------------

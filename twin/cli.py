@@ -78,9 +78,7 @@ def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
         "--poisson", type=finite(0, 0.5, max_inclusive=False), metavar="NU", help="Poisson ratio, in [0, 0.5)"
     )
     g.add_argument("--damping", type=finite(0, 1), metavar="S", help="elasticity damping (s), in [0, 1]")
-    g.add_argument(
-        "--density", type=finite(0, 2e4, min_inclusive=False), metavar="KG_M3", help="density (kg/m^3)"
-    )
+    g.add_argument("--density", type=finite(1, 2e4), metavar="KG_M3", help="density (kg/m^3; foams: 10-100)")
     g.add_argument("--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
     g.add_argument("--resolution", type=integer(3, 12), metavar="N", help="flexcomp vertices per axis (3-12)")
     g.add_argument("--dof", choices=("trilinear", "quadratic", "full"), help="foam discretization")

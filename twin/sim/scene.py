@@ -7,6 +7,7 @@ from pathlib import Path
 import mujoco
 from dm_control import mjcf
 
+from twin.interface.errors import ConfigError
 from twin.sim.foam import FLEXCOMP_TYPE, FoamParams
 
 MODEL_DIR = Path(__file__).resolve().parents[2] / "models" / "barrett_mjcf"
@@ -60,8 +61,13 @@ def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
 
 
 def compile_scene(root: mjcf.RootElement) -> mujoco.MjModel:
-    """Compile an mjcf tree to an MjModel (assets passed in memory)."""
-    return mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
+    """Compile an mjcf tree to an MjModel (assets passed in memory); ConfigError, one line, when MuJoCo
+    refuses the scene (e.g. an object too light for its mass and inertia to be represented)."""
+    try:
+        return mujoco.MjModel.from_xml_string(root.to_xml_string(), root.get_assets())
+    except ValueError as exc:
+        reason = " ".join(str(exc).removeprefix("Error: ").split())
+        raise ConfigError(f"MuJoCo cannot build the scene: {reason}") from None
 
 
 def build_model(foam: FoamParams | None = None, *, cameras: bool = False) -> mujoco.MjModel:

@@ -100,29 +100,3 @@ def worker_pool(
         stop_workers(pool)
         raise
     pool.shutdown(wait=True)
-
-
-def child_pids(pid: int) -> list[int]:
-    """The live child processes of `pid` (Linux /proc; empty elsewhere)."""
-    children = []
-    with contextlib.suppress(OSError):
-        for entry in os.listdir("/proc"):
-            if not entry.isdigit():
-                continue
-            with contextlib.suppress(OSError, ValueError, IndexError):
-                with open(f"/proc/{entry}/stat", encoding="ascii", errors="replace") as f:
-                    stat = f.read()
-                fields = stat[stat.rindex(")") + 2 :].split()
-                if int(fields[1]) == pid and fields[0] != "Z":
-                    children.append(int(entry))
-    return children
-
-
-def descendant_pids(pid: int) -> list[int]:
-    """Every live process below `pid` (children, their children, ...)."""
-    out, todo = [], [pid]
-    while todo:
-        kids = child_pids(todo.pop())
-        out += kids
-        todo += kids
-    return out

@@ -2,6 +2,7 @@
 or `twin sweep --workers 2` leaves no worker process behind (they once lived 30+ minutes at ~250 MB
 each, holding the terminal)."""
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -12,9 +13,36 @@ from pathlib import Path
 import pytest
 
 from experiments.compress import run_compress
-from twin.processes import descendant_pids, sigterm_as_interrupt
+from twin.processes import sigterm_as_interrupt
 from twin.sim.backend import SimBackend
 from twin.sim.foam import get_object
+
+
+def child_pids(pid: int) -> list[int]:
+    """The live child processes of `pid` (Linux /proc; empty elsewhere)."""
+    children = []
+    with contextlib.suppress(OSError):
+        for entry in os.listdir("/proc"):
+            if not entry.isdigit():
+                continue
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                with open(f"/proc/{entry}/stat", encoding="ascii", errors="replace") as f:
+                    stat = f.read()
+                fields = stat[stat.rindex(")") + 2 :].split()
+                if int(fields[1]) == pid and fields[0] != "Z":
+                    children.append(int(entry))
+    return children
+
+
+def descendant_pids(pid: int) -> list[int]:
+    """Every live process below `pid` (children, their children, ...)."""
+    out, todo = [], [pid]
+    while todo:
+        kids = child_pids(todo.pop())
+        out += kids
+        todo += kids
+    return out
+
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 

@@ -433,17 +433,16 @@ def cmd_run_compress(args: argparse.Namespace) -> int:
             shape_model=shape_model,
         ),
     )
-    _print_completion(outcome)
-    truth = json.loads((outcome.run_dir / "run.json").read_text())["metadata"].get("stereo_truth")
+    truth = _print_completion(outcome).get("stereo_truth")
     if truth:
         print(f"reconstruction vs the twin's truth: {_surface_summary(truth)}")
     print(f"view it: twin view {outcome.run_dir}")
     return 0
 
 
-def _print_completion(outcome) -> None:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
+def _print_completion(outcome) -> dict:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
     """'run complete' on stdout; on stderr each of the run's warnings (a loop that missed its rate) and
-    how many hand cycles the driver recovered (each is listed in run.json)."""
+    how many hand cycles the driver recovered (each is listed in run.json). Returns run.json's metadata."""
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
     for warning in outcome.warnings:
         print(f"twin: warning: {warning}", file=sys.stderr)
@@ -455,6 +454,7 @@ def _print_completion(outcome) -> None:  # noqa: ANN001 - twin.session.RunOutcom
             f"(run.json: metadata.hand_recoveries); first: {recoveries[0]}",
             file=sys.stderr,
         )
+    return meta
 
 
 def _hand_backend(args: argparse.Namespace, foam):  # noqa: ANN001

@@ -287,10 +287,9 @@ class Rig:
         self._order = 0
         self.samples: dict[str, int] = {}
         self._stereo_sampled = 0
-        self.stop_reason: str | None = None
-        """Why the run stopped early and what became of the hand, one line (None: it did not)."""
         self.stop: StopReport | None = None
-        """The same, structured (run.json's 'stop')."""
+        """Why the run stopped early and what the rig verified after (run.json's 'stop'); None: it did
+        not stop early."""
         self._vision: ThreadPoolExecutor | None = None
         self._stereo_jobs: deque[Future] = deque()
         self.surface_scores: list[dict] = []
@@ -391,7 +390,6 @@ class Rig:
             self._record_stereo(wait=True)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
             self.stop = self._safe_stop(exc)
-            self.stop_reason = self.stop.message()
             with contextlib.suppress(Exception):  # keep the frames already taken (<= the backlog)
                 self._record_stereo(wait=True)
             raise
@@ -401,6 +399,11 @@ class Rig:
                 self._vision = None
         warnings = self._loop_rate_warnings(n_hand, duration_s, hand_wall_s)
         return RigResult(dict(self.samples), controller.phase, duration_s, warnings)
+
+    @property
+    def stop_reason(self) -> str | None:
+        """Why the run stopped early and what became of the hand, one line (None: it did not)."""
+        return None if self.stop is None else self.stop.message()
 
     def _loop_rate_warnings(self, n_hand: int, duration_s: float, wall_s: list[float]) -> list[str]:
         """A hardware hand loop that ran below LOOP_RATE_TOLERANCE of its declared rate, in one line."""

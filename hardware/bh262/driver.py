@@ -49,14 +49,15 @@ SUPPORTED_BAUD = (600, 1200, 2400, 4800, 9600, 19200, 38400)
 SCHEDULING_MARGIN_S = 0.5
 """How late a reply may come, beyond its bytes' wire time, and still count: a scheduling allowance.
 
-A real BH8-262 answers a RealTime block within ~26 ms of its wire time (one lab measured 33 ms per
-cycle at 38400 baud, 6.8 ms of it on the wire). Everything beyond that is the host (or an emulator on
-the same machine) being scheduled late: with every core busy, a Python process waits 100-500 ms for
-the CPU now and then (measured: RealTime replies of `twin emulate hand` on a 2-core machine at load
-7-14, p99 265 ms, worst 414 ms over 300 cycles). A reply later than this counts as missing and the
-cycle is recovered; `watchdog_cycles` attempts in a row without valid feedback stop the run, so a hand
-that went silent is given up on after about (watchdog_cycles + 1) x this (2 s with the defaults: the
-reply, then leaving and re-entering LOOP). 50 ms stopped half of the fault-free runs there."""
+A real BH8-262 answers a RealTime block within ~26 ms of its wire time
+(shared/reference/bh262_protocol.md: one lab measured 33 ms per cycle at 38400 baud, 6.8 ms of it on the
+wire). Everything beyond that is the host (or an emulator on the same machine) being scheduled late: with
+every core busy, a Python process waits 100-500 ms for the CPU now and then (measured: RealTime replies
+of `twin emulate hand` on a 2-core machine at load 7-14, p99 265 ms, worst 414 ms over 300 cycles). A
+reply later than this counts as missing and the cycle is recovered; `watchdog_cycles` attempts in a row
+without valid feedback stop the run, so a hand that went silent is given up on after about
+(watchdog_cycles + 1) x this (2 s with the defaults: the reply, then leaving and re-entering LOOP). 50 ms
+stopped half of the fault-free runs there."""
 MOTOR_PREFIXES = ("", "1", "2", "3", "4", "S", "G", "GS", "12", "13", "23", "123", "1234")
 
 

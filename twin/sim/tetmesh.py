@@ -1,0 +1,492 @@
+"""Volumetric tetrahedral meshes for the foam objects, from primitives or from closed surface-mesh files.
+
+MuJoCo's flexcomp box/cylinder/ellipsoid are surface shells around one centre vertex; a foam that deforms
+like foam needs a truly volumetric mesh, passed as `<flexcomp type="direct" dim="3" point=... element=...>`.
+gmsh (a global singleton in the process) builds the meshes, one call at a time under a lock, silent.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import threading
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from twin.interface.errors import ConfigError
+from twin.sim.foam import MAX_HALF_WIDTH_M, MAX_HEIGHT_M, MIN_SIZE_M
+
+PRIMITIVES: tuple[str, ...] = ("block", "cylinder", "sphere")
+FILE_SUFFIXES: tuple[str, ...] = (".stl", ".obj")
+MAX_VERTICES = 3000
+"""Most mesh vertices a foam may have: each is a 3-dof body in the sim, which must stay fast."""
+MIN_TETS = 4
+"""Fewest tetrahedra a foam may have: fewer cannot bend or bulge at all."""
+MM_PER_FILE_UNIT_SCALE_M = 0.001
+"""Default metres per file unit: scanners and CAD exports write millimetres."""
+
+_GMSH_TET = 4
+"""gmsh element type of a 4-node tetrahedron."""
+_GMSH_TRIANGLE = 2
+"""gmsh element type of a 3-node triangle."""
+_GMSH_DELAUNAY_3D = 1
+_GMSH_FRONTAL_DELAUNAY_2D = 6
+_FEATURE_ANGLE_RAD = math.radians(40.0)
+"""Dihedral angle above which a file surface keeps a sharp edge when gmsh re-meshes it."""
+_RELATIVE_AREA_TOL = 1e-12
+"""A face whose area is below this fraction of the bounding-box diagonal squared counts as zero."""
+_RELATIVE_VOLUME_TOL = 1e-6
+"""A surface enclosing less than this fraction of its bounding-box volume counts as flat."""
+_VERTICES_PER_EDGE_CUBED = 1.0
+"""Fewest vertices per edge_m^3 of volume gmsh makes (measured 1.5 for the primitives, 3 for small file
+surfaces): a low estimate, so the pre-check before meshing refuses only meshes sure to be too large."""
+
+_GMSH_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True, eq=False)
+class TetMesh:
+    """A tetrahedral volume mesh in the object frame (metres, centred on the bounding-box centre, z up).
+
+    Every tetrahedron is positively oriented and every point is used. The arrays are read-only so a cached
+    mesh cannot be changed by a caller."""
+
+    points_m: np.ndarray
+    tets: np.ndarray
+
+    @property
+    def volume_m3(self) -> float:
+        """Total volume of the tetrahedra (m^3)."""
+        return float(_tet_volumes_m3(self.points_m, self.tets).sum())
+
+    @property
+    def extent_m(self) -> tuple[float, float, float]:
+        """Full extents of the bounding box along x, y, z (m)."""
+        x, y, z = np.ptp(self.points_m, axis=0)
+        return float(x), float(y), float(z)
+
+    @property
+    def boundary_faces(self) -> np.ndarray:
+        """(k, 3) triangles of the tetrahedra faces that belong to one tetrahedron only, normals outward."""
+        t = self.tets
+        # For a positive tet (a, b, c, d) these four faces have outward normals (right-hand rule).
+        faces = np.concatenate([t[:, [0, 2, 1]], t[:, [0, 1, 3]], t[:, [0, 3, 2]], t[:, [1, 2, 3]]])
+        _, index, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
+        return faces[np.sort(index[counts == 1])]
+
+    @property
+    def boundary_vertices(self) -> np.ndarray:
+        """Sorted indices of the points on the boundary surface."""
+        return np.unique(self.boundary_faces)
+
+    @property
+    def interior_vertices(self) -> np.ndarray:
+        """Sorted indices of the points strictly inside the volume."""
+        return np.setdiff1d(np.arange(len(self.points_m)), self.boundary_vertices)
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """A closed triangle surface read from a file, in metres (welded: shared corners are one point)."""
+
+    points_m: np.ndarray
+    triangles: np.ndarray
+
+
+def _tet_volumes_m3(points_m: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volume of each tetrahedron (positive when (b-a, c-a, d-a) is right-handed)."""
+    a, b, c, d = (points_m[tets[:, i]] for i in range(4))
+    return np.einsum("ij,ij->i", b - a, np.cross(c - a, d - a)) / 6.0
+
+
+def _frozen(array: np.ndarray) -> np.ndarray:
+    array = np.ascontiguousarray(array)
+    array.setflags(write=False)
+    return array
+
+
+def _mm(extent_m: tuple[float, ...] | np.ndarray) -> str:
+    return " x ".join(f"{float(s) * 1e3:.1f}" for s in extent_m) + " mm"
+
+
+# ---------------------------------------------------------------------------------------------- gmsh
+
+
+class _Gmsh:
+    """Context for one gmsh session: the lock held, initialized silent and single-threaded, always finalized.
+
+    interruptible=False keeps gmsh from installing a SIGINT handler, which only the main thread may do."""
+
+    def __enter__(self) -> Any:
+        import gmsh  # imported lazily: only meshing needs it
+
+        _GMSH_LOCK.acquire()
+        try:
+            gmsh.initialize(readConfigFiles=False, interruptible=False)
+            gmsh.option.setNumber("General.Terminal", 0)
+            gmsh.option.setNumber("General.Verbosity", 0)
+            gmsh.option.setNumber("General.NumThreads", 1)
+            gmsh.option.setNumber("Mesh.MaxNumThreads1D", 1)
+            gmsh.option.setNumber("Mesh.MaxNumThreads2D", 1)
+            gmsh.option.setNumber("Mesh.MaxNumThreads3D", 1)
+            gmsh.option.setNumber("Mesh.Algorithm", _GMSH_FRONTAL_DELAUNAY_2D)
+            gmsh.option.setNumber("Mesh.Algorithm3D", _GMSH_DELAUNAY_3D)
+            gmsh.model.add("foam")
+        except BaseException:
+            self._finalize(gmsh)
+            raise
+        self._gmsh = gmsh
+        return gmsh
+
+    def __exit__(self, *exc: object) -> None:
+        self._finalize(self._gmsh)
+
+    @staticmethod
+    def _finalize(gmsh: Any) -> None:
+        try:
+            if gmsh.isInitialized():
+                gmsh.finalize()
+        finally:
+            _GMSH_LOCK.release()
+
+
+def _set_uniform_size(gmsh: Any, edge_m: float) -> None:
+    """Ask gmsh for edges of about edge_m everywhere (no refinement from points or curvature)."""
+    opt = gmsh.option
+    opt.setNumber("Mesh.MeshSizeMin", edge_m)
+    opt.setNumber("Mesh.MeshSizeMax", edge_m)
+    opt.setNumber("Mesh.MeshSizeFromPoints", 0)
+    opt.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    opt.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+
+
+def _extract_tets(gmsh: Any) -> TetMesh:
+    """The generated tetrahedra as a TetMesh: unused nodes dropped, tets made positive, re-centred."""
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    types, _, node_tags = gmsh.model.mesh.getElements(3)
+    if _GMSH_TET not in list(types):
+        return TetMesh(_frozen(np.zeros((0, 3))), _frozen(np.zeros((0, 4), dtype=np.int64)))
+    tet_tags = np.asarray(node_tags[list(types).index(_GMSH_TET)], dtype=np.int64).reshape(-1, 4)
+    order = np.argsort(tags)
+    points = np.asarray(xyz, dtype=float).reshape(-1, 3)[order]
+    tets = np.searchsorted(np.asarray(tags)[order], tet_tags)
+    return _tidy(points, tets)
+
+
+def _tidy(points_m: np.ndarray, tets: np.ndarray) -> TetMesh:
+    """Drop unused points, renumber in first-use order, orient every tet positively, centre the box."""
+    used, first = np.unique(tets.ravel(), return_index=True)
+    used = used[np.argsort(first)]
+    renumber = np.empty(len(points_m), dtype=np.int64)
+    renumber[used] = np.arange(len(used))
+    points = points_m[used]
+    tets = renumber[tets]
+    negative = _tet_volumes_m3(points, tets) < 0
+    tets[negative] = tets[negative][:, [0, 2, 1, 3]]
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2.0
+    return TetMesh(_frozen(points - centre), _frozen(tets))
+
+
+# ------------------------------------------------------------------------------------------ primitives
+
+
+def primitive_mesh(shape: str, size_m: tuple[float, float, float], edge_m: float) -> TetMesh:
+    """A tetrahedral mesh of a block, elliptic cylinder or ellipsoid of full extents size_m (m).
+
+    block: a structured (transfinite) mesh, vertices on a regular grid, flat faces and sharp corners.
+    cylinder: diameters size_m[0], size_m[1], height size_m[2] along z. sphere: an ellipsoid of diameters
+    size_m. Target edge length edge_m. Deterministic; cached, since scenes are rebuilt often."""
+    size = tuple(float(s) for s in size_m)
+    _check_primitive(shape, size, float(edge_m))
+    return _primitive_mesh_cached(shape, (size[0], size[1], size[2]), float(edge_m))
+
+
+def _check_primitive(shape: str, size_m: tuple[float, ...], edge_m: float) -> None:
+    if shape not in PRIMITIVES:
+        raise ConfigError(f"unknown mesh shape '{shape}' (choose from {', '.join(PRIMITIVES)})")
+    if len(size_m) != 3 or not all(math.isfinite(s) and s > 0 for s in size_m):
+        raise ConfigError(f"mesh size must be 3 positive extents in m, got {size_m}")
+    _check_edge(edge_m)
+    _check_edge_fits(edge_m, size_m, f"a {_mm(size_m)} {shape}")
+    x, y, z = size_m
+    volume_m3 = {"block": 1.0, "cylinder": math.pi / 4, "sphere": math.pi / 6}[shape] * x * y * z
+    _check_estimate(volume_m3, edge_m, f"a {_mm(size_m)} {shape}")
+
+
+def _check_edge(edge_m: float) -> None:
+    if not (math.isfinite(edge_m) and edge_m > 0):
+        raise ConfigError(f"mesh edge length must be a positive number of metres, got {edge_m:g}")
+
+
+def _check_edge_fits(edge_m: float, extent_m: tuple[float, ...] | np.ndarray, what: str) -> None:
+    """An edge longer than half the smallest extent leaves no room for a volume (gmsh may fail)."""
+    longest_m = float(min(extent_m)) / 2
+    if edge_m > longest_m * (1 + 1e-9):
+        raise ConfigError(
+            f"{what} cannot be meshed at {edge_m * 1e3:.1f} mm edges (at most half its smallest extent, "
+            f"{longest_m * 1e3:.1f} mm): choose a shorter edge length"
+        )
+
+
+def _check_estimate(volume_m3: float, edge_m: float, what: str) -> None:
+    """Refuse before meshing when the edge is so small that the mesh would be far too large."""
+    estimate = _VERTICES_PER_EDGE_CUBED * volume_m3 / edge_m**3
+    if estimate > 2 * MAX_VERTICES:
+        raise ConfigError(
+            f"{what} meshed at {edge_m * 1e3:.1f} mm edges needs ~{estimate:.0f} vertices "
+            f"(at most {MAX_VERTICES}): choose a longer edge length"
+        )
+
+
+@functools.lru_cache(maxsize=64)
+def _primitive_mesh_cached(shape: str, size_m: tuple[float, float, float], edge_m: float) -> TetMesh:
+    with _Gmsh() as gmsh:
+        occ = gmsh.model.occ
+        x, y, z = size_m
+        if shape == "block":
+            occ.addBox(-x / 2, -y / 2, -z / 2, x, y, z)
+            occ.synchronize()
+            _make_transfinite(gmsh, edge_m)
+        else:
+            radius_m = x / 2
+            if shape == "cylinder":
+                tag = occ.addCylinder(0, 0, -z / 2, 0, 0, z, radius_m)
+                occ.dilate([(3, tag)], 0, 0, 0, 1.0, y / x, 1.0)
+            else:
+                tag = occ.addSphere(0, 0, 0, radius_m)
+                occ.dilate([(3, tag)], 0, 0, 0, 1.0, y / x, z / x)
+            occ.synchronize()
+            _set_uniform_size(gmsh, edge_m)
+        gmsh.model.mesh.generate(3)
+        mesh = _extract_tets(gmsh)
+    _check_counts(mesh, edge_m, f"a {_mm(size_m)} {shape}")
+    return mesh
+
+
+def _make_transfinite(gmsh: Any, edge_m: float) -> None:
+    """Structured grid on an axis-aligned box: round(length / edge) cells along every edge."""
+    model = gmsh.model
+    for _, curve in model.getEntities(1):
+        x0, y0, z0, x1, y1, z1 = model.getBoundingBox(1, curve)
+        length_m = max(x1 - x0, y1 - y0, z1 - z0)
+        model.mesh.setTransfiniteCurve(curve, max(1, round(length_m / edge_m)) + 1)
+    for _, surface in model.getEntities(2):
+        model.mesh.setTransfiniteSurface(surface)
+    for _, volume in model.getEntities(3):
+        model.mesh.setTransfiniteVolume(volume)
+
+
+def _check_counts(mesh: TetMesh, edge_m: float, what: str) -> None:
+    n_points, n_tets = len(mesh.points_m), len(mesh.tets)
+    if n_points > MAX_VERTICES:
+        raise ConfigError(
+            f"{what} meshed at {edge_m * 1e3:.1f} mm edges has {n_points} vertices "
+            f"(at most {MAX_VERTICES}): choose a longer edge length"
+        )
+    if n_tets < MIN_TETS:
+        raise ConfigError(
+            f"{what} meshed at {edge_m * 1e3:.1f} mm edges has only {n_tets} tetrahedra "
+            f"(at least {MIN_TETS}): choose a shorter edge length"
+        )
+    if _tet_volumes_m3(mesh.points_m, mesh.tets).min() <= _RELATIVE_VOLUME_TOL * edge_m**3:
+        raise ConfigError(f"{what} meshed at {edge_m * 1e3:.1f} mm edges has flat tetrahedra (degenerate)")
+    pieces = _count_pieces(mesh)
+    if pieces > 1:
+        raise ConfigError(f"{what} is {pieces} separate pieces, not one foam object")
+
+
+def _count_pieces(mesh: TetMesh) -> int:
+    """Number of connected groups of tetrahedra (joined through shared vertices)."""
+    return _count_surface_pieces(len(mesh.points_m), mesh.tets)
+
+
+def _count_surface_pieces(n_points: int, cells: np.ndarray) -> int:
+    """Number of connected groups of cells (triangles or tetrahedra) joined through shared vertices."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(cells[:, 0], cells.shape[1] - 1)
+    cols = cells[:, 1:].ravel()
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_points, n_points))
+    return int(connected_components(graph, directed=False)[0])
+
+
+# ---------------------------------------------------------------------------------------- mesh files
+
+
+def load_surface(path: Path, scale: float = MM_PER_FILE_UNIT_SCALE_M) -> Surface:
+    """Read a closed triangle surface from .stl (ascii or binary) or .obj; scale = metres per file unit.
+
+    The default scale 0.001 reads the file as millimetres, as scanners and CAD exports write. Shared
+    corners are welded; ConfigError (one line) for a missing, empty, unparsable, open or degenerate file."""
+    path = Path(path)
+    where = f"mesh file '{path}'"
+    if not (math.isfinite(scale) and scale > 0):
+        raise ConfigError(f"{where}: scale must be a positive number of metres per file unit, got {scale:g}")
+    points, triangles = _read_triangles(path, where)
+    points_m, triangles = _weld(points * scale, triangles)
+    _check_not_degenerate(points_m, triangles, where)  # first: welding a flat surface makes it non-manifold
+    _check_closed(triangles, where)
+    pieces = _count_surface_pieces(len(points_m), triangles)
+    if pieces > 1:
+        raise ConfigError(f"{where}: the surface is {pieces} separate pieces (one closed surface per file)")
+    return Surface(_frozen(points_m), _frozen(triangles))
+
+
+def _read_triangles(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Points and triangles (quads and polygons fanned) as meshio reads them; ConfigError when it cannot."""
+    import meshio  # imported lazily: only mesh files need it
+
+    suffix = path.suffix.lower()
+    if suffix not in FILE_SUFFIXES:
+        raise ConfigError(f"{where}: unsupported format '{suffix}' (use {' or '.join(FILE_SUFFIXES)})")
+    if not path.is_file():
+        raise ConfigError(f"{where}: no such file")
+    try:
+        if path.stat().st_size == 0:
+            raise ConfigError(f"{where}: the file is empty")
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            mesh = meshio.read(path, file_format=suffix[1:])
+    except ConfigError:
+        raise
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    except Exception:
+        raise ConfigError(f"{where}: cannot be parsed as {suffix[1:].upper()}") from None
+    points = np.asarray(mesh.points, dtype=float)
+    faces = [_fan(np.asarray(block.data, dtype=np.int64)) for block in mesh.cells if block.type != "vertex"]
+    faces = [f for f in faces if len(f)]
+    if not faces or len(points) == 0:
+        raise ConfigError(f"{where}: no triangles found (empty, or not a surface mesh)")
+    triangles = np.concatenate(faces)
+    if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
+        raise ConfigError(f"{where}: vertices must be finite 3D points")
+    if triangles.min() < 0 or triangles.max() >= len(points):
+        raise ConfigError(f"{where}: faces refer to vertices that do not exist")
+    return points, triangles
+
+
+def _fan(faces: np.ndarray) -> np.ndarray:
+    """Triangles of polygon faces (k, n >= 3) by fanning from the first corner; lines and points dropped."""
+    if faces.ndim != 2 or faces.shape[1] < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    return np.concatenate([faces[:, [0, i, i + 1]] for i in range(1, faces.shape[1] - 1)])
+
+
+def _weld(points_m: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge bit-identical points (STL repeats every corner) and drop points no face uses."""
+    unique, inverse = np.unique(points_m, axis=0, return_inverse=True)
+    triangles = inverse.reshape(-1)[triangles]
+    used, triangles = np.unique(triangles, return_inverse=True)
+    return unique[used], triangles.reshape(-1, 3)
+
+
+def _check_closed(triangles: np.ndarray, where: str) -> None:
+    """A volume needs a watertight, manifold surface: every edge shared by exactly two faces."""
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edges = np.sort(edges, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    open_edges = int((counts == 1).sum())
+    non_manifold = int((counts > 2).sum())
+    if open_edges or non_manifold:
+        parts = []
+        if open_edges:
+            parts.append(f"{open_edges} open edge{'s' if open_edges != 1 else ''} (holes)")
+        if non_manifold:
+            parts.append(f"{non_manifold} non-manifold edge{'s' if non_manifold != 1 else ''} (>2 faces)")
+        raise ConfigError(f"{where}: the surface is not watertight: {' and '.join(parts)}")
+
+
+def _check_not_degenerate(points_m: np.ndarray, triangles: np.ndarray, where: str) -> None:
+    """Refuse zero-area faces and a surface that encloses no volume (flat)."""
+    a, b, c = (points_m[triangles[:, i]] for i in range(3))
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    diagonal_m = float(np.linalg.norm(np.ptp(points_m, axis=0)))
+    zero = int((area2 <= _RELATIVE_AREA_TOL * diagonal_m**2).sum())
+    extent = np.ptp(points_m, axis=0)
+    enclosed_m3 = abs(float(np.einsum("ij,ij->", a, np.cross(b, c)))) / 6.0
+    if enclosed_m3 <= _RELATIVE_VOLUME_TOL * float(np.prod(extent)) or zero == len(triangles):
+        raise ConfigError(f"{where}: the surface encloses no volume (flat or degenerate, {_mm(extent)})")
+    if zero:
+        raise ConfigError(f"{where}: {zero} of {len(triangles)} faces have zero area (degenerate surface)")
+
+
+def _check_fits(extent_m: np.ndarray, where: str) -> None:
+    x, y, z = (float(e) for e in extent_m)
+    if max(x, y) / 2 > MAX_HALF_WIDTH_M or z > MAX_HEIGHT_M:
+        raise ConfigError(
+            f"{where}: {_mm(extent_m)} does not fit in the hand (footprint <= "
+            f"{2 * MAX_HALF_WIDTH_M * 1e3:.0f} mm, height <= {MAX_HEIGHT_M * 1e3:.0f} mm; "
+            "is the scale right?)"
+        )
+    if min(x, y, z) < MIN_SIZE_M:
+        raise ConfigError(
+            f"{where}: {_mm(extent_m)} is too small (every extent >= {MIN_SIZE_M * 1e3:.0f} mm; "
+            "is the scale right?)"
+        )
+
+
+def file_mesh(path: Path, edge_m: float, scale: float = MM_PER_FILE_UNIT_SCALE_M) -> TetMesh:
+    """Tetrahedralise the closed surface in an .stl/.obj file at target edge length edge_m (m).
+
+    scale is metres per file unit (default 0.001: the file is in millimetres). The surface is re-meshed
+    at edge_m, re-centred on its bounding-box centre and keeps its orientation (z up as in the file).
+    Cached on the file's path, size and modification time."""
+    path = Path(path)
+    _check_edge(float(edge_m))
+    try:
+        stat = path.stat()
+        key = (stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        key = (-1, -1)  # load_surface says what is wrong
+    return _file_mesh_cached(str(path), key, float(edge_m), float(scale))
+
+
+@functools.lru_cache(maxsize=16)
+def _file_mesh_cached(path: str, key: tuple[int, int], edge_m: float, scale: float) -> TetMesh:
+    where = f"mesh file '{path}'"
+    surface = load_surface(Path(path), scale)
+    extent_m = np.ptp(surface.points_m, axis=0)
+    _check_fits(extent_m, where)
+    _check_edge_fits(edge_m, extent_m, where)
+    a, b, c = (surface.points_m[surface.triangles[:, i]] for i in range(3))
+    enclosed_m3 = abs(float(np.einsum("ij,ij->", a, np.cross(b, c)))) / 6.0
+    _check_estimate(enclosed_m3, edge_m, where)
+    mesh = _tetrahedralise(surface, edge_m, where)
+    _check_counts(mesh, edge_m, where)
+    return mesh
+
+
+def _tetrahedralise(surface: Surface, edge_m: float, where: str) -> TetMesh:
+    """Re-mesh the surface at edge_m with gmsh (classify, re-parametrise) and fill it with tetrahedra."""
+    with _Gmsh() as gmsh:
+        model = gmsh.model
+        centre = (surface.points_m.min(axis=0) + surface.points_m.max(axis=0)) / 2.0
+        entity = model.addDiscreteEntity(2)
+        node_tags = np.arange(1, len(surface.points_m) + 1)
+        model.mesh.addNodes(2, entity, node_tags, (surface.points_m - centre).ravel())
+        model.mesh.addElementsByType(entity, _GMSH_TRIANGLE, [], (surface.triangles + 1).ravel())
+        try:
+            model.mesh.classifySurfaces(_FEATURE_ANGLE_RAD, True, True, math.pi)
+            model.mesh.createGeometry()
+            surfaces = [tag for _, tag in model.getEntities(2)]
+            loop = model.geo.addSurfaceLoop(surfaces)
+            model.geo.addVolume([loop])
+            model.geo.synchronize()
+            _set_uniform_size(gmsh, edge_m)
+            model.mesh.generate(3)
+        except Exception as exc:
+            detail = " ".join(str(exc).split()) or type(exc).__name__
+            raise ConfigError(
+                f"{where}: gmsh could not fill the surface with tetrahedra (self-intersecting surface, or an "
+                f"edge length too coarse for its detail?): {detail}"
+            ) from None
+        mesh = _extract_tets(gmsh)
+    if len(mesh.tets) == 0:
+        raise ConfigError(f"{where}: gmsh made no tetrahedra (self-intersecting or badly shaped surface?)")
+    return mesh

@@ -80,8 +80,18 @@ def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
     g.add_argument("--damping", type=finite(0, 1), metavar="S", help="elasticity damping (s), in [0, 1]")
     g.add_argument("--density", type=finite(1, 2e4), metavar="KG_M3", help="density (kg/m^3; foams: 10-100)")
     g.add_argument("--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
-    g.add_argument("--resolution", type=integer(3, 12), metavar="N", help="flexcomp vertices per axis (3-12)")
-    g.add_argument("--dof", choices=("trilinear", "quadratic", "full"), help="foam discretization")
+    g.add_argument(
+        "--fidelity",
+        choices=("fast", "faithful"),
+        help="foam discretization preset: fast (8 trilinear nodes) or faithful (a volumetric mesh)",
+    )
+    g.add_argument(
+        "--resolution",
+        type=integer(3, 12),
+        metavar="N",
+        help="foam vertices per axis (fast) or along the longest extent (faithful), 3-12",
+    )
+    g.add_argument("--dof", choices=("trilinear", "quadratic", "full"), help="MuJoCo flex dof")
     g.add_argument(
         "--friction", type=finite(0, 3, min_inclusive=False), help="sliding friction coefficient, in (0, 3]"
     )
@@ -118,6 +128,19 @@ def build_parser() -> argparse.ArgumentParser:
     run_sub = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
     c.add_argument("--object", default="block", help="library object (see `twin objects`)")
+    c.add_argument(
+        "--object-mesh",
+        type=existing_file(),
+        metavar="FILE",
+        help="a foam of any closed shape: an .stl/.obj surface (e.g. a scan), with --object's material",
+    )
+    c.add_argument(
+        "--mesh-scale",
+        type=finite(1e-6, 1, min_inclusive=True),
+        default=0.001,
+        metavar="M",
+        help="metres per --object-mesh unit (default 0.001: the file is in millimetres)",
+    )
     _add_run_options(c, duration_s=10.0)
     c.add_argument(
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
@@ -350,15 +373,30 @@ def cmd_objects(args: argparse.Namespace) -> int:
 
 
 def _foam_from_args(args: argparse.Namespace):
-    from twin.sim.foam import get_object
+    from twin.sim.foam import get_object, mesh_object
 
     size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
-    return get_object(args.object).with_overrides(
+    base = get_object(args.object)
+    if getattr(args, "object_mesh", None) is not None:
+        if size is not None:
+            raise ConfigError("--size-mm does not apply to --object-mesh (the mesh gives the size)")
+        if args.fidelity == "fast" or args.dof is not None:
+            raise ConfigError("a mesh foam is always volumetric (faithful, full dof)")
+        from twin.sim.scene import foam_mesh
+
+        foam = mesh_object(args.object_mesh, base, args.mesh_scale).with_overrides(
+            young_pa=args.young, poisson=args.poisson, damping=args.damping,
+            density_kg_m3=args.density, resolution=args.resolution, friction=args.friction,
+        )  # fmt: skip
+        foam_mesh(foam)  # tetrahedralise now: a bad mesh fails in one line before anything is written
+        return foam
+    return base.with_overrides(
         young_pa=args.young,
         poisson=args.poisson,
         damping=args.damping,
         density_kg_m3=args.density,
         size_m=size,
+        fidelity=args.fidelity,
         resolution=args.resolution,
         dof=args.dof,
         friction=args.friction,

@@ -9,15 +9,57 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 from typing import Any, Literal
 
 from twin.interface.errors import ConfigError
 
-Shape = Literal["block", "cylinder", "sphere"]
+Shape = Literal["block", "cylinder", "sphere", "mesh"]
 Dof = Literal["trilinear", "quadratic", "full"]
-SHAPES: tuple[str, ...] = ("block", "cylinder", "sphere")
+Fidelity = Literal["fast", "faithful"]
+SHAPES: tuple[str, ...] = ("block", "cylinder", "sphere", "mesh")
 DOFS: tuple[str, ...] = ("trilinear", "quadratic", "full")
+FIDELITIES: tuple[str, ...] = ("fast", "faithful")
 FLEXCOMP_TYPE = {"block": "box", "cylinder": "cylinder", "sphere": "ellipsoid"}
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """How a fidelity preset meshes a foam for MuJoCo, and how its surface meets rigid bodies.
+
+    `volumetric`: a tetrahedral mesh of the whole volume (twin.sim.tetmesh, gmsh) with `resolution`
+    vertices along the longest extent; otherwise a flexcomp primitive with `resolution` vertices per axis.
+    Contacts: MuJoCo's soft constraints are scaled by the effective mass, and a foam vertex weighs
+    ~0.1 g, so the fingers' solref/solimp let a light flex sink in by as much as the dent itself; the
+    faithful foam takes the contact (priority over the fingers) with an impedance of 0.9999 throughout."""
+
+    volumetric: bool
+    dof: Dof
+    resolution: int
+    solref: tuple[float, float]
+    solimp: tuple[float, float, float]
+    priority: int
+
+
+PRESETS: dict[str, Discretization] = {
+    "fast": Discretization(
+        volumetric=False,
+        dof="trilinear",
+        resolution=4,
+        solref=(0.004, 1.0),
+        solimp=(0.95, 0.99, 0.001),
+        priority=0,
+    ),
+    "faithful": Discretization(
+        volumetric=True,
+        dof="full",
+        resolution=6,
+        solref=(0.004, 1.0),
+        solimp=(0.9999, 0.9999, 0.001),
+        priority=1,
+    ),
+}
+"""The fidelity presets (BENCHMARKS.md, foam fidelity: figures of each against the FEM reference)."""
 
 MAX_HALF_WIDTH_M = 0.045
 """Largest footprint half-width that clears the finger roots (inner joints at |y| = 50 mm, link
@@ -39,15 +81,38 @@ class FoamParams:
     damping: float = 0.002
     """Flex elasticity damping (MuJoCo <elasticity damping>, s): a Kelvin-Voigt time constant."""
     density_kg_m3: float = 30.0
-    resolution: int = 4
-    """Vertices per axis of the flexcomp grid."""
-    dof: Dof = "trilinear"
+    fidelity: Fidelity = "fast"
+    """Discretization preset (PRESETS): `fast` (8 trilinear nodes) or `faithful` (a volumetric mesh)."""
+    resolution: int | None = None
+    """Vertices per axis (fast) or along the longest extent (faithful); None: the preset's."""
+    dof: Dof | None = None
+    """MuJoCo flex dof (full, quadratic or trilinear); None: the preset's."""
+    mesh_file: str = ""
+    """A closed .stl/.obj surface for shape "mesh" (mesh_object(): size_m is then its extents)."""
+    mesh_scale_m: float = 0.001
+    """Metres per mesh-file unit (scanners and CAD export millimetres)."""
     friction: float = 0.8
     stiffness_class: str = ""
     rgba: tuple[float, float, float, float] = (0.95, 0.75, 0.35, 1.0)
 
     def __post_init__(self) -> None:
+        preset = PRESETS.get(self.fidelity)
+        if preset is not None:  # fill the preset's discretization; validate() refuses an unknown fidelity
+            if self.resolution is None:
+                object.__setattr__(self, "resolution", preset.resolution)
+            if self.dof is None:
+                object.__setattr__(self, "dof", preset.dof)
         validate(self)
+
+    @property
+    def discretization(self) -> Discretization:
+        """The preset with this object's dof and resolution."""
+        return replace(PRESETS[self.fidelity], dof=self.dof, resolution=self.resolution)
+
+    @property
+    def edge_m(self) -> float:
+        """Target edge length of a volumetric mesh (m): the longest extent over resolution - 1."""
+        return max(self.size_m) / (self.resolution - 1)
 
     @property
     def volume_m3(self) -> float:
@@ -57,6 +122,10 @@ class FoamParams:
             return x * y * z
         if self.shape == "cylinder":
             return math.pi * (x / 2) * (y / 2) * z
+        if self.shape == "mesh":
+            from twin.sim.tetmesh import file_mesh  # imports gmsh: only for mesh foams
+
+            return file_mesh(Path(self.mesh_file), self.edge_m, self.mesh_scale_m).volume_m3
         return 4.0 / 3.0 * math.pi * (x / 2) * (y / 2) * (z / 2)
 
     @property
@@ -73,11 +142,14 @@ class FoamParams:
         return d
 
     def with_overrides(self, **overrides: Any) -> FoamParams:
-        """A copy with some parameters replaced (validated); None values are ignored."""
+        """A copy with some parameters replaced (validated); None values are ignored. A new fidelity
+        brings its preset's dof and resolution unless those are given too."""
         given = {k: v for k, v in overrides.items() if v is not None}
         unknown = set(given) - {f.name for f in fields(self)}
         if unknown:
             raise ConfigError(f"unknown foam parameter(s): {', '.join(sorted(unknown))}")
+        if "fidelity" in given and given["fidelity"] != self.fidelity:
+            given = {"dof": None, "resolution": None} | given
         return replace(self, **given)
 
 
@@ -92,6 +164,12 @@ def validate(p: FoamParams) -> None:
         _fail(p, "parameters must be finite numbers")
     if p.shape not in SHAPES:
         _fail(p, f"unknown shape '{p.shape}' (choose from {', '.join(SHAPES)})")
+    if p.fidelity not in FIDELITIES:
+        _fail(p, f"unknown fidelity '{p.fidelity}' (choose from {', '.join(FIDELITIES)})")
+    if (p.shape == "mesh") != bool(p.mesh_file):
+        _fail(p, "a mesh foam needs a mesh file, and only a mesh foam takes one")
+    if p.shape == "mesh" and p.fidelity != "faithful":
+        _fail(p, "a mesh foam is always volumetric: use fidelity 'faithful'")
     if p.dof not in DOFS:
         _fail(p, f"unknown discretization '{p.dof}' (choose from {', '.join(DOFS)})")
     if not p.young_pa > 0:
@@ -112,7 +190,7 @@ def validate(p: FoamParams) -> None:
             f"{_mm(p.size_m)} does not fit in the hand (footprint <= "
             f"{2 * MAX_HALF_WIDTH_M * 1e3:.0f} mm, height <= {MAX_HEIGHT_M * 1e3:.0f} mm)",
         )
-    if not 3 <= p.resolution <= 12:
+    if not isinstance(p.resolution, int) or not 3 <= p.resolution <= 12:
         _fail(p, f"resolution must be 3-12 vertices per axis, got {p.resolution}")
     if not 0 < p.friction <= 3:
         _fail(p, f"friction must be in (0, 3], got {p.friction:g}")
@@ -174,6 +252,24 @@ LIBRARY: dict[str, FoamParams] = {
     )
 }
 DEFAULT_OBJECT = "block"
+
+
+def mesh_object(path: Path, material: FoamParams, scale_m: float = 0.001) -> FoamParams:
+    """A faithful foam of the closed surface in `path` (.stl/.obj, `scale_m` metres per unit) with the
+    material of `material`; ConfigError (one line) for a file that is no closed, fitting surface."""
+    from twin.sim.tetmesh import load_surface  # imports meshio: only for mesh foams
+
+    surface = load_surface(Path(path), scale_m)
+    extent = surface.points_m.max(axis=0) - surface.points_m.min(axis=0)
+    return material.with_overrides(
+        name=Path(path).stem,
+        shape="mesh",
+        mesh_file=str(Path(path).resolve()),
+        mesh_scale_m=scale_m,
+        size_m=tuple(float(e) for e in extent),
+        fidelity="faithful",
+        stiffness_class=material.stiffness_class,
+    )
 
 
 def get_object(name: str) -> FoamParams:

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import mujoco
 from dm_control import mjcf
 
 from twin.interface.errors import ConfigError
 from twin.sim.foam import FLEXCOMP_TYPE, FoamParams
+
+if TYPE_CHECKING:
+    from twin.sim.tetmesh import TetMesh
 
 MODEL_DIR = Path(__file__).resolve().parents[2] / "models" / "barrett_mjcf"
 SCENE_XML = MODEL_DIR / "scene.xml"
@@ -31,32 +35,60 @@ def scene_mjcf(foam: FoamParams | None = None, *, cameras: bool = False) -> mjcf
     return root
 
 
+VOLUMETRIC_SOLVER = {"solver": "CG", "tolerance": 1e-5, "iterations": 200}
+"""Solver options a volumetric foam needs: MuJoCo's discrete integrator solves M + h^2 K by PCG, whose
+residual target is `tolerance`; with light vertices and h^2 K >> M it stops short at 1e-8 or 100
+iterations (mjWARN_INERTIA), and CG is ~1.5x faster than Newton here (benchmarks/foam_fidelity.py)."""
+
+
+def foam_mesh(foam: FoamParams) -> TetMesh:
+    """The volumetric mesh of a faithful foam (gmsh; cached)."""
+    from twin.sim.tetmesh import file_mesh, primitive_mesh  # gmsh: only for volumetric foams
+
+    if foam.shape == "mesh":
+        return file_mesh(Path(foam.mesh_file), foam.edge_m, foam.mesh_scale_m)
+    return primitive_mesh(foam.shape, foam.size_m, foam.edge_m)
+
+
 def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
-    """Add `foam` as a volumetric flexcomp centred on the palm, 1 mm above its surface."""
-    count = foam.resolution
-    spacing = [s / (count - 1) for s in foam.size_m]
+    """Add `foam` as a flexcomp resting on the palm, 1 mm above its surface: a tetrahedral mesh of its
+    volume (faithful) or a flexcomp primitive (fast), per its fidelity preset."""
+    disc = foam.discretization
     z = PALM_SURFACE_Z_M + foam.size_m[2] / 2 + 0.001
-    fc = root.worldbody.add(
-        "flexcomp",
-        name=FOAM_NAME,
-        type=FLEXCOMP_TYPE[foam.shape],
-        dim=3,
-        count=[count] * 3,
-        spacing=spacing,
-        pos=[0.0, 0.0, z],
-        radius=0.001,
-        dof=foam.dof,
-        mass=foam.mass_kg,
-        rgba=list(foam.rgba),
-    )
+    common = dict(name=FOAM_NAME, dim=3, pos=[0.0, 0.0, z], radius=0.001, dof=disc.dof, rgba=list(foam.rgba))
+    if disc.volumetric:
+        mesh = foam_mesh(foam)
+        fc = root.worldbody.add(
+            "flexcomp",
+            type="direct",
+            point=mesh.points_m.ravel().tolist(),
+            element=mesh.tets.ravel().tolist(),
+            mass=foam.mass_kg,
+            **common,
+        )
+        for key, value in VOLUMETRIC_SOLVER.items():
+            setattr(root.option, key, value)
+    else:
+        count = disc.resolution
+        spacing = [s / (count - 1) for s in foam.size_m]
+        fc = root.worldbody.add(
+            "flexcomp",
+            type=FLEXCOMP_TYPE[foam.shape],
+            count=[count] * 3,
+            spacing=spacing,
+            mass=foam.mass_kg,
+            **common,
+        )
     fc.elasticity.young = foam.young_pa
     fc.elasticity.poisson = foam.poisson
     fc.elasticity.damping = foam.damping
     fc.contact.selfcollide = "none"
     fc.contact.condim = 3
     fc.contact.friction = [foam.friction, 0.005, 0.0001]
-    fc.contact.solref = [0.004, 1]
-    fc.contact.solimp = [0.95, 0.99, 0.001]
+    fc.contact.solref = list(disc.solref)
+    fc.contact.solimp = list(disc.solimp)
+    if disc.priority:
+        fc.contact.priority = disc.priority
     fc.edge.equality = "false"
 
 

@@ -2,6 +2,7 @@
 and bad input that ends in one line, a non-zero exit and nothing written."""
 
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -68,20 +69,27 @@ def test_run_compress_end_to_end_then_info_and_rrd(tmp_path: Path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("fidelity", ["fast", "faithful"])
 @pytest.mark.parametrize("name", sorted(LIBRARY))
-def test_every_library_foam_runs_10_s_headless(name: str, tmp_path: Path):
+def test_every_library_foam_runs_10_s_headless(name: str, fidelity: str, tmp_path: Path, caplog):
+    """A whole compress run of every library foam at both fidelities: zero MuJoCo warnings (the counters and
+    MuJoCo's log), and the grasp holds to the end."""
     out = tmp_path / name
-    assert (
-        main(["run", "compress", "--object", name, "--duration", "10", "--out", str(out), "--no-progress"])
-        == 0
-    )
+    argv = ["run", "compress", "--object", name, "--fidelity", fidelity, "--duration", "10"]
+    with caplog.at_level(logging.WARNING, logger="absl"):
+        assert main([*argv, "--out", str(out), "--no-progress"]) == 0
+    assert not [r.getMessage() for r in caplog.records if r.name == "absl"]
     run = open_run(out)
     assert run.status == "complete"
+    assert run.metadata["object"]["fidelity"] == fidelity
     assert run.metadata["mujoco_warnings"] == {}
     assert run.metadata["final_phase"] == "compress"
     torque = run.stream("hand")["torque_nm"]
     # Far above the 0.005 N*m gauge noise: every finger still squeezes the foam through the last 2 s.
-    assert (torque[-60:] > 0.05).all()
+    # (Not yet for the faithful soft foams, whose deeper dents outgrow the procedure's constants, tuned on
+    # the trilinear foam: the re-baseline of issue 19.)
+    if fidelity == "fast":
+        assert (torque[-60:] > 0.05).all()
 
 
 @pytest.mark.slow

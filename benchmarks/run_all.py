@@ -1,6 +1,6 @@
 """Run benchmarks and write BENCHMARKS.md with the machine they ran on.
 
-Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_discretization,serial_cycle]
+Usage: python benchmarks/run_all.py [--quick] [--only realtime,foam_fidelity,serial_cycle]
 Each section sits between markers, so --only re-runs some sections and keeps the others as they were.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SECTIONS = (
     "realtime",
-    "foam_discretization",
+    "foam_fidelity",
     "serial_cycle",
     "bridge_under_load",
     "tactile_sensors",
@@ -29,6 +29,7 @@ SECTIONS = (
     "identification_unseen",
     "shape_network",
     "sweep_throughput",
+    "run_overhead",
 )
 
 

@@ -183,12 +183,9 @@ def summarize_surface_scores(scores: list[dict], median_mm: float = 1.5, coverag
     }
 
 
-@dataclass(order=True)
-class _Event:
-    t_s: float
-    order: int
-    kind: str = field(compare=False)
-    payload: object = field(compare=False, default=None)
+_Event = tuple[float, int, str, object]
+"""(time s, order pushed, kind, payload): the rig's schedule is a heap of these plain tuples, ordered by
+time, then by the order they were pushed (never by kind or payload: the order is unique)."""
 
 
 LOOP_RATE_TOLERANCE = 0.98
@@ -294,31 +291,37 @@ class Rig:
         self._stereo_jobs: deque[Future] = deque()
         self.surface_scores: list[dict] = []
         """Per stereo frame, the reconstruction scored against the twin's truth (sim only)."""
-        hand_spec = backend.hand.spec
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
-        if writer is not None:
-            writer.add_stream(hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit))
-            writer.add_stream(command_stream_spec(hand_spec.rate_hz))
-            if backend.ground_truth() is not None:
-                writer.add_stream(truth_stream_spec(hand_spec.rate_hz))
-            if backend.tactile is not None:
-                writer.add_stream(tactile_stream_spec(backend.tactile.spec.rate_hz))
-            if shape_model is not None:
-                writer.add_stream(
-                    contour_stream_spec("shape", hand_spec.rate_hz, shape_model.points, "predicted")
-                )
-                if stereo_pipeline is not None:
-                    rate = backend.stereo.spec.rate_hz
-                    writer.add_stream(contour_stream_spec("contour", rate, shape_model.points, "measured"))
+        if writer is not None:  # declared together: one rewrite of run.json
+            writer.add_streams(*self._stream_specs())
+
+    def _stream_specs(self) -> list[StreamSpec]:
+        """The streams this rig records, from its backend's devices and the rig's options."""
+        backend, shape_model, stereo_pipeline = self.backend, self.shape_model, self.stereo_pipeline
+        hand_spec = backend.hand.spec
+        specs = [
+            hand_stream_spec(hand_spec.rate_hz, hand_spec.channels["velocity_counts"].unit),
+            command_stream_spec(hand_spec.rate_hz),
+        ]
+        if backend.ground_truth() is not None:
+            specs.append(truth_stream_spec(hand_spec.rate_hz))
+        if backend.tactile is not None:
+            specs.append(tactile_stream_spec(backend.tactile.spec.rate_hz))
+        if shape_model is not None:
+            specs.append(contour_stream_spec("shape", hand_spec.rate_hz, shape_model.points, "predicted"))
             if stereo_pipeline is not None:
-                writer.add_stream(stereo_stream_spec(backend.stereo.spec.rate_hz))
-                if backend.ground_truth() is not None:
-                    rate = backend.stereo.spec.rate_hz / STEREO_TRUTH_EVERY
-                    writer.add_stream(stereo_truth_stream_spec(rate))
+                rate = backend.stereo.spec.rate_hz
+                specs.append(contour_stream_spec("contour", rate, shape_model.points, "measured"))
+        if stereo_pipeline is not None:
+            specs.append(stereo_stream_spec(backend.stereo.spec.rate_hz))
+            if backend.ground_truth() is not None:
+                rate = backend.stereo.spec.rate_hz / STEREO_TRUTH_EVERY
+                specs.append(stereo_truth_stream_spec(rate))
+        return specs
 
     def _push(self, t_s: float, kind: str, payload: object = None) -> None:
         self._order += 1
-        heapq.heappush(self._queue, _Event(t_s, self._order, kind, payload))
+        heapq.heappush(self._queue, (t_s, self._order, kind, payload))
 
     def run(
         self,
@@ -355,26 +358,26 @@ class Rig:
         hand_wall_s: list[float] = []  # wall time of the first and the latest hand sample (hardware)
         try:
             while self._queue:
-                event = heapq.heappop(self._queue)
-                clock.advance_to(event.t_s)
-                if event.kind == "sample_hand":
+                event_t_s, _, kind, payload = heapq.heappop(self._queue)
+                clock.advance_to(event_t_s)
+                if kind == "sample_hand":
                     if not self.backend.is_simulated:
                         now_s = time.monotonic()
                         hand_wall_s = [hand_wall_s[0] if hand_wall_s else now_s, now_s]
                     reading = hand.read()
                     truth = self.backend.ground_truth()
                     self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
-                elif event.kind == "deliver_hand":
-                    reading, truth = event.payload
+                elif kind == "deliver_hand":
+                    reading, truth = payload
                     self._deliver(reading, truth, controller)
                     if progress is not None:
-                        progress(event.t_s)
-                elif event.kind == "sample_tactile":
+                        progress(event_t_s)
+                elif kind == "sample_tactile":
                     for scan in tactile.read_pending():
-                        self._push(max(scan.t_s + tactile_latency, event.t_s), "deliver_tactile", scan)
-                elif event.kind == "deliver_tactile":
-                    self._deliver_tactile(event.payload)
-                elif event.kind == "sample_stereo":
+                        self._push(max(scan.t_s + tactile_latency, event_t_s), "deliver_tactile", scan)
+                elif kind == "deliver_tactile":
+                    self._deliver_tactile(payload)
+                elif kind == "sample_stereo":
                     pending = stereo.read_async()  # the sim renders it while the physics runs on
                     truth = (
                         self.backend.surface_truth(self.stereo_pipeline.rectifier)
@@ -382,11 +385,11 @@ class Rig:
                         else None
                     )
                     self._stereo_sampled += 1
-                    self._push(event.t_s + stereo_latency, "deliver_stereo", (pending, truth))
-                elif event.kind == "deliver_stereo":
-                    self._deliver_stereo(event.payload)
-                elif event.kind == "scene":
-                    self.scene_logger(event.t_s)
+                    self._push(event_t_s + stereo_latency, "deliver_stereo", (pending, truth))
+                elif kind == "deliver_stereo":
+                    self._deliver_stereo(payload)
+                elif kind == "scene":
+                    self.scene_logger(event_t_s)
             self._record_stereo(wait=True)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
             self.stop = self._safe_stop(exc)
@@ -582,5 +585,5 @@ class Rig:
 
     def _record(self, stream: str, t_s: float, values: dict) -> None:
         self.samples[stream] = self.samples.get(stream, 0) + 1
-        if self.writer is not None:
-            self.writer.append(stream, t_s, {k: np.asarray(v) for k, v in values.items()})
+        if self.writer is not None:  # the writer checks and copies each value as its declared dtype
+            self.writer.append(stream, t_s, values)

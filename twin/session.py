@@ -10,7 +10,6 @@ verified.
 
 from __future__ import annotations
 
-import contextlib
 import platform
 import sys
 import tempfile
@@ -134,6 +133,7 @@ def run_experiment(
         rrd_path = run_dir / RRD_NAME
         writer = RunWriter(run_dir, metadata)
         rig = None
+        result: RigResult | None = None
         try:
             files = backend.write_calibration(run_dir / "calibration")
             writer.update_metadata(
@@ -158,18 +158,16 @@ def run_experiment(
                     shape_model=shape_model,
                 )
                 result = rig.run(controller, duration_s, progress)
-                writer.update_metadata(final_phase=result.final_phase)
-            finally:  # what went wrong is kept even when the run failed
-                _keep_diagnostics(writer, backend, rig)
+            finally:
                 recording.close()
             for line in result.warnings:
                 writer.warn(line)
-        except BaseException as exc:
-            error = _close_failed(writer, exc, rig)
+        except BaseException as exc:  # what went wrong is kept even when the run failed
+            error = _close_failed(writer, exc, rig, backend, result)
             if error is exc:
                 raise
             raise error from exc
-        writer.close("complete")
+        writer.close("complete", metadata=_diagnostics(backend, rig, result))
     except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
         try:
             backend.disconnect()
@@ -207,30 +205,37 @@ def _source_names(message: str, copies: dict[str, Path], backend: Backend) -> st
     return message
 
 
-def _keep_diagnostics(writer: RunWriter, backend: Backend, rig: Rig | None) -> None:
-    """Keep the backend's diagnostics and the reconstruction scores in run.json; a directory already
-    lost is left to writer.close to report."""
-    try:
-        writer.update_metadata(**backend.diagnostics())
-        if rig is not None and rig.surface_scores:
-            writer.update_metadata(stereo_truth=summarize_surface_scores(rig.surface_scores))
-    except RunDirectoryLostError:
-        pass
+def _diagnostics(backend: Backend, rig: Rig | None, result: RigResult | None) -> dict[str, Any]:
+    """What run.json keeps beside the status, whatever it is (written with it by writer.close, in one
+    rewrite): the backend's diagnostics, the reconstruction scores, and a finished run's final phase."""
+    items = dict(backend.diagnostics())
+    if rig is not None and rig.surface_scores:
+        items["stereo_truth"] = summarize_surface_scores(rig.surface_scores)
+    if result is not None:
+        items["final_phase"] = result.final_phase
+    return items
 
 
-def _close_failed(writer: RunWriter, exc: BaseException, rig: Rig | None) -> BaseException:
+def _close_failed(
+    writer: RunWriter, exc: BaseException, rig: Rig | None, backend: Backend, result: RigResult | None
+) -> BaseException:
     """Close the run as failed or interrupted with what was verified; the error to raise.
 
     run.json's error names the stopping error and whether the hand acknowledged its idle; where it
-    did not, the CLI's line says so too (a DeviceError with the same message)."""
+    did not, the CLI's line says so too (a DeviceError with the same message). The diagnostics and the
+    stop report go into the same final run.json."""
     stop = rig.stop if rig is not None else None
     message = stop.message() if stop is not None else (str(exc) or type(exc).__name__)
+    try:
+        items = _diagnostics(backend, rig, result)
+    except Exception as failed:  # the run's own error is the one to report
+        exc.add_note(f"(its diagnostics could not be kept: {failed})")
+        items = {}
     if stop is not None:
-        with contextlib.suppress(RunDirectoryLostError):
-            writer.update_metadata(stop=stop.to_json())
+        items["stop"] = stop.to_json()
     status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
     try:
-        writer.close(status, message)
+        writer.close(status, message, metadata=items)
     except RunDirectoryLostError as lost:
         return lost
     if stop is not None and not stop.hand_safe and isinstance(exc, TwinError | OSError):

@@ -28,6 +28,7 @@ What a run directory promises:
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -189,14 +190,20 @@ class _StreamFile:
 
 def _validate_row(spec: StreamSpec, values: Mapping[str, ArrayLike]) -> dict[str, np.ndarray]:
     """One sample's values cast to their declared dtypes; ValueError on names, shape or value."""
-    missing = [name for name in spec.fields if name not in values]
-    unknown = [name for name in values if name not in spec.fields]
-    if missing or unknown:
+    if values.keys() != spec.fields.keys():
+        missing = [name for name in spec.fields if name not in values]
+        unknown = [name for name in values if name not in spec.fields]
         raise ValueError(
             f"stream {spec.name!r}: missing fields {missing}, unknown fields {unknown}; "
             f"declared {list(spec.fields)}"
         )
     return {name: _cast(spec.name, name, fspec, values[name]) for name, fspec in spec.fields.items()}
+
+
+@functools.cache
+def _dtype(name: str) -> np.dtype:
+    """The numpy dtype of a declared dtype name (looked up once per name)."""
+    return np.dtype(name)
 
 
 def _cast(stream: str, name: str, spec: FieldSpec, value: ArrayLike) -> np.ndarray:
@@ -207,6 +214,8 @@ def _cast(stream: str, name: str, spec: FieldSpec, value: ArrayLike) -> np.ndarr
             raise ValueError(f"stream {stream!r} field {name!r}: shape {arr.shape}, declared {spec.shape}")
     elif arr.shape != spec.shape:
         raise ValueError(f"stream {stream!r} field {name!r}: shape {arr.shape}, declared {spec.shape}")
+    if arr.dtype == _dtype(spec.dtype):  # already the declared dtype: nothing to convert or check
+        return arr.copy()  # a copy all the same: the caller may change its array before the write
     if arr.dtype.kind not in "biuf":
         raise ValueError(f"stream {stream!r} field {name!r}: non-numeric dtype {arr.dtype}")
     with np.errstate(invalid="ignore", over="ignore"):
@@ -260,14 +269,23 @@ class RunWriter:
 
     def add_stream(self, spec: StreamSpec) -> None:
         """Declare a stream (before or during the run); ValueError on a duplicate name."""
+        self.add_streams(spec)
+
+    def add_streams(self, *specs: StreamSpec) -> None:
+        """Declare several streams with one rewrite of run.json (each rewrite is synced to disk);
+        TypeError or ValueError (a duplicate name), and none added, on a bad one."""
         self._check_open()
-        if not isinstance(spec, StreamSpec):
-            raise TypeError(f"add_stream expects a StreamSpec, got {type(spec).__name__}")
-        if spec.name in self._streams:
-            raise ValueError(f"stream {spec.name!r} already added")
+        names = set(self._streams)
+        for spec in specs:
+            if not isinstance(spec, StreamSpec):
+                raise TypeError(f"add_stream expects a StreamSpec, got {type(spec).__name__}")
+            if spec.name in names:
+                raise ValueError(f"stream {spec.name!r} already added")
+            names.add(spec.name)
         self.check_identity()
-        self._streams[spec.name] = _StreamFile(spec, f"{spec.name}{STREAM_SUFFIX}", self._streams_fd)
-        self._info["streams"][spec.name] = spec.to_json()
+        for spec in specs:
+            self._streams[spec.name] = _StreamFile(spec, f"{spec.name}{STREAM_SUFFIX}", self._streams_fd)
+            self._info["streams"][spec.name] = spec.to_json()
         self._write_info()
 
     def append(self, stream: str, t_s: float, values: Mapping[str, ArrayLike]) -> None:
@@ -323,16 +341,21 @@ class RunWriter:
             f"lost ({status})"
         )
 
-    def close(self, status: str = "complete", error: str | None = None) -> None:
+    def close(
+        self, status: str = "complete", error: str | None = None, *, metadata: Mapping[str, Any] | None = None
+    ) -> None:
         """Flush and fsync every stream, then record the final status in run.json (idempotent).
 
-        Each stream file's size and SHA-256 go into run.json (``integrity``). RunDirectoryLostError,
-        and nothing written, when the directory was removed or replaced meanwhile."""
+        Each stream file's size and SHA-256 go into run.json (``integrity``), and `metadata` merged
+        into the run metadata, as update_metadata would, in the same final rewrite of run.json.
+        RunDirectoryLostError, and nothing written, when the directory was removed or replaced meanwhile."""
         if status not in STATUSES:
             raise ValueError(f"status {status!r} not one of {sorted(STATUSES)}")
         if self._closed:
             return
+        items = to_plain_json(dict(metadata or {}))  # a value that is not JSON fails here, nothing closed
         self._closed = True
+        self._metadata.update(items)
         failure: BaseException | None = None
         digests: dict[str, dict] = {}
         for name, sf in self._streams.items():

@@ -19,7 +19,7 @@ from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
 from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth, score_against
-from twin.sim.tactile import SimTactile, SimTactileSensor
+from twin.sim.tactile import SimTactile, SimTactileSensor, contact_frame_forces
 from twin.sim.world import DEFAULT_HINT, SimWorld
 from twin.vision.calibration import StereoCalibration
 from twin.vision.reconstruct import Box, Rectifier
@@ -110,7 +110,8 @@ class SimBackend(Backend):
         self._inner = [m.joint(f"f{k}_inner").qposadr[0] for k in FINGERS]
         self._outer = [m.joint(f"f{k}_outer").qposadr[0] for k in FINGERS]
         self._spread = m.joint("f1_spread").qposadr[0]
-        self._outer_bodies = [m.body(f"f{k}_outer").id for k in FINGERS]
+        self._outer_bodies = np.array([m.body(f"f{k}_outer").id for k in FINGERS])
+        self._pyramidal = m.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
 
     @property
     def clock(self) -> Clock:
@@ -126,8 +127,8 @@ class SimBackend(Backend):
         """Link angles, distal torques, clutch states and fingertip contact forces now."""
         d = self.world.data
         return {
-            "inner_rad": d.qpos[self._inner].copy(),
-            "outer_rad": d.qpos[self._outer].copy(),
+            "inner_rad": d.qpos[self._inner],  # indexed by a list: already copies
+            "outer_rad": d.qpos[self._outer],
             "spread_rad": np.float64(d.qpos[self._spread]),
             "distal_torque_nm": self.world.clutches.outer_torque_nm.copy(),
             "broken_away": self.world.clutches.broken_away,
@@ -138,14 +139,16 @@ class SimBackend(Backend):
         """(3,) magnitude of the summed contact force on each outer link (N)."""
         m, d = self.world.model, self.world.data
         total = np.zeros((3, 3))
-        wrench = np.zeros(6)
-        for i in range(d.ncon):
-            c = d.contact[i]
-            bodies = [m.geom_bodyid[g] if g >= 0 else -1 for g in (c.geom1, c.geom2)]
-            for k, body in enumerate(self._outer_bodies):
-                if body in bodies:
-                    mujoco.mj_contactForce(m, d, i, wrench)
-                    total[k] += c.frame.reshape(3, 3).T @ wrench[:3]
+        if d.ncon:  # all contacts at once (a per-contact loop cost ~0.1 ms a sample)
+            contact = d.contact
+            geom = contact.geom
+            bodies = np.where(geom >= 0, m.geom_bodyid[np.maximum(geom, 0)], -1)
+            touches = (bodies[:, :, None] == self._outer_bodies).any(axis=1)  # (ncon, 3 fingers)
+            idx = np.flatnonzero(touches.any(axis=1) & (contact.efc_address >= 0))  # no row: no force
+            if idx.size:
+                local = contact_frame_forces(d, idx, self._pyramidal)
+                world = np.einsum("nij,ni->nj", contact.frame[idx].reshape(-1, 3, 3), local)  # frame.T @ f
+                total = touches[idx].T.astype(float) @ world
         return np.linalg.norm(total, axis=1)
 
     def object_box(self, rectifier: Rectifier, margin_px: int = 3) -> Box | None:

@@ -15,9 +15,6 @@ import numpy as np
 
 from twin import units
 
-_EQUALITY = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
-"""As a plain int: comparing a numpy array to the pybind enum is elementwise Python (~0.6 ms)."""
-
 BREAKAWAY_TORQUE_NM = 0.5
 """Inner-link torque at which the clutch slips (GraspIt! Barrett.xml <breakAwayTorque>)."""
 
@@ -43,8 +40,9 @@ class Clutches:
         self.model = model
         self.threshold_nm = threshold_nm
         self.fingers = [self._finger(model, k) for k in (1, 2, 3)]
-        self._eq_inner = np.array([f.couple_inner for f in self.fingers])
-        self._eq_outer = np.array([f.couple_outer for f in self.fingers])
+        self._eq_inner = [f.couple_inner for f in self.fingers]
+        self._eq_outer = [f.couple_outer for f in self.fingers]
+        self._drive_qpos = np.array([f.drive_qpos for f in self.fingers])
         self.inner_torque_nm = np.zeros(3)
         self.outer_torque_nm = np.zeros(3)
 
@@ -73,13 +71,17 @@ class Clutches:
             self._couple(f, data)
 
     def update(self, data: mujoco.MjData) -> None:
-        """Read the coupling torques of the last step and switch clutches that slip or re-engage."""
+        """Read the coupling torques of the last step and switch clutches that slip or re-engage.
+
+        Runs after every step: the three fingers' values are read in one go as Python floats (numpy
+        per-element indexing and small-array ops cost more than the decision itself)."""
         self._read_coupling_torques(data)
-        for k, f in enumerate(self.fingers):
-            drive = data.qpos[f.drive_qpos]
+        drives = data.qpos[self._drive_qpos].tolist()
+        set_points = data.ctrl[:3].tolist()
+        torques = self.inner_torque_nm.tolist()
+        for f, drive, set_point, torque in zip(self.fingers, drives, set_points, torques, strict=True):
             if not f.broken_away:
-                closing = data.ctrl[k] > drive
-                if closing and self.inner_torque_nm[k] > self.threshold_nm:
+                if set_point > drive and torque > self.threshold_nm:  # closing and slipping
                     self._break_away(f, data)
             elif drive <= f.drive_at_breakaway_rad:
                 self._couple(f, data)
@@ -88,21 +90,13 @@ class Clutches:
         """Torque each coupling applies to its link joint: efc_force of its equality row.
 
         A joint equality q1 = poly(q2) has Jacobian +1 on q1, so its row's force is the torque on q1.
-        MuJoCo puts equality rows first, so only the first neq rows are scanned.
+        MuJoCo puts the equality rows first: the first data.ne rows are all of them.
         """
-        self.inner_torque_nm[:] = 0.0
-        self.outer_torque_nm[:] = 0.0
-        n = min(data.nefc, self.model.neq)
-        rows = data.efc_type[:n] == _EQUALITY
-        ids = data.efc_id[:n][rows]
-        force = data.efc_force[:n][rows]
-        for k in range(3):
-            hit = force[ids == self._eq_inner[k]]
-            if hit.size:
-                self.inner_torque_nm[k] = hit[0]
-            hit = force[ids == self._eq_outer[k]]
-            if hit.size:
-                self.outer_torque_nm[k] = hit[0]
+        ne = data.ne
+        ids, forces = data.efc_id[:ne].tolist(), data.efc_force[:ne].tolist()  # a few rows: as lists
+        torque = dict(zip(reversed(ids), reversed(forces), strict=True))  # by equality id; its first row
+        self.inner_torque_nm[:] = [torque.get(e, 0.0) for e in self._eq_inner]  # inactive: no row, 0
+        self.outer_torque_nm[:] = [torque.get(e, 0.0) for e in self._eq_outer]
 
     def _break_away(self, f: FingerClutch, data: mujoco.MjData) -> None:
         drive = data.qpos[f.drive_qpos]

@@ -82,11 +82,13 @@ class SimHand(Hand):
         self.idle_state()
 
     def _slew(self, data: mujoco.MjData) -> None:
+        """Before every physics step: each motor's set point one step's slew closer to its target."""
         if self._hold:
             return
         ctrl = data.ctrl[self._act]
-        step = self._slew_rad_s * self.world.timestep_s
-        data.ctrl[self._act] = ctrl + np.clip(self._target_rad - ctrl, -step, step)
+        step = self._slew_rad_s * self.world.model.opt.timestep
+        # np.clip's bounds, written out: np.clip costs ~3 us a call, every 2 ms step
+        data.ctrl[self._act] = ctrl + np.minimum(np.maximum(self._target_rad - ctrl, -step), step)
 
     def read(self) -> HandReading:
         """Encoders, velocity (counts per sample time) and strain gauges (eq. 2 inverse)."""

@@ -90,6 +90,37 @@ class SimTactileSensor:
         return {"tactile_points": points, "tactile_table": table}
 
 
+def contact_frame_forces(
+    data: mujoco.MjData, idx: NDArray[np.int64], pyramidal: bool, *, tangents: bool = True
+) -> NDArray[np.float64]:
+    """(n, 3) force of contacts idx in their contact frames (normal, then the two tangents), as
+    mj_contactForce gives its first three components, for all of them at once (no per-call cost);
+    without `tangents`, the normal only (the others left 0).
+
+    Pyramidal cones keep 2 (dim - 1) edge forces: the normal is their sum and tangent i is
+    (edge 2i - edge 2i+1) * friction i (mju_decodePyramid); elliptic cones keep the force itself."""
+    contact = data.contact
+    adr, dim = contact.efc_address[idx], contact.dim[idx]
+    out = np.zeros((idx.size, 3))
+    if not idx.size:
+        return out
+    rows = np.maximum(2 * (dim - 1), 1) if pyramidal else dim  # a frictionless contact: one row
+    first = int(rows[0])
+    uniform = bool((rows == first).all())  # the usual case: every contact of one condim
+    for r in [first] if uniform else np.unique(rows).tolist():
+        sel = slice(None) if uniform else rows == r
+        f = data.efc_force[adr[sel, None] + np.arange(r)]
+        if not pyramidal:
+            out[sel, : min(r, 3) if tangents else 1] = f[:, : 3 if tangents else 1]
+            continue
+        out[sel, 0] = f.sum(axis=1)
+        pairs = min(r // 2, 2) if tangents and r > 1 else 0
+        if pairs:
+            friction = contact.friction[idx[sel], :pairs]
+            out[sel, 1 : 1 + pairs] = (f[:, 0 : 2 * pairs : 2] - f[:, 1 : 2 * pairs : 2]) * friction
+    return out
+
+
 class _Pad:
     """Per-pad constants for binning: body, frame, taxel coordinates on the pad plane."""
 
@@ -122,6 +153,18 @@ class SimTactile(TactileArray):
         self._pad_of_body = np.full(model.nbody, -1)
         for k, pad in enumerate(self._pads):
             self._pad_of_body[pad.body] = k
+        # The pads' constants stacked, so that a scan bins the contacts of every pad at once.
+        pads = self._pads
+        self._pad_body = np.array([p.body for p in pads])
+        self._pad_origin = np.array([p.origin for p in pads])
+        self._pad_axes = np.array([[p.u, p.v, p.n] for p in pads])  # (pads, 3, 3): rows u, v, normal
+        self._pad_lo, self._pad_hi = np.array([p.lo for p in pads]), np.array([p.hi for p in pads])
+        width = max(p.ids.size for p in pads)
+        self._pad_taxels = np.full((len(pads), width), N_TAXELS)  # padding: a taxel past the last
+        self._pad_uv = np.full((len(pads), width, 2), np.inf)  # padding: infinitely far, weight 0
+        for k, p in enumerate(pads):
+            self._pad_taxels[k, : p.ids.size] = p.ids
+            self._pad_uv[k, : p.ids.size] = p.uv
         self._pyramidal = model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
         self.contact_points_m = np.zeros((0, 3))
         """World positions of the contacts binned by the last scan."""
@@ -140,57 +183,59 @@ class SimTactile(TactileArray):
         pass
 
     def taxel_forces_n(self) -> NDArray[np.float64]:
-        """(162,) normal force on each taxel now: contact forces binned over the pads (vectorized)."""
+        """(162,) normal force on each taxel now: contact forces binned over the pads.
+
+        Every (contact, pad) pair is binned at once, pad by pad in contact order (the order of
+        contact_points_m); a contact between two pads counts on each."""
         m, d = self.world.model, self.world.data
-        forces = np.zeros(N_TAXELS)
-        points, vectors = [np.zeros((0, 3))], [np.zeros((0, 3))]
-        if d.ncon:
-            contact = d.contact
-            geom = contact.geom
-            bodies = np.where(geom >= 0, m.geom_bodyid[np.maximum(geom, 0)], -1)
-            pad_side = np.where(bodies >= 0, self._pad_of_body[np.maximum(bodies, 0)], -1)
-            touching = np.flatnonzero((pad_side >= 0).any(axis=1) & (contact.efc_address >= 0))
-            normal = self._normal_forces(touching) if touching.size else np.zeros(0)
-            for k, pad in enumerate(self._pads):
-                on_pad = (pad_side[touching] == k).any(axis=1) & (normal > 0)
-                if not on_pad.any():
-                    continue
-                idx = touching[on_pad]
-                fn = normal[on_pad]
-                rot = d.xmat[pad.body].reshape(3, 3)
-                local = (contact.pos[idx] - d.xpos[pad.body]) @ rot - pad.origin
-                uv = np.column_stack([local @ pad.u, local @ pad.v])
-                keep = (local @ pad.n >= -FACE_DEPTH_M) & np.all((uv >= pad.lo) & (uv <= pad.hi), axis=1)
-                if not keep.any():
-                    continue
-                uv, fn, idx = uv[keep], fn[keep], idx[keep]
-                dist2 = np.sum((uv[:, None, :] - pad.uv[None, :, :]) ** 2, axis=2)
-                weights = np.exp(-dist2 / (2 * SPREAD_SIGMA_M**2))
-                total = weights.sum(axis=1)
-                lost = total < 1e-12  # far from every cell centre: the nearest cell takes it
-                if lost.any():
-                    weights[lost] = 0.0
-                    weights[lost, np.argmin(dist2[lost], axis=1)] = 1.0
-                    total[lost] = 1.0
-                forces[pad.ids] += (fn / total) @ weights
-                points.append(contact.pos[idx])
-                vectors.append(-fn[:, None] * (rot @ pad.n)[None, :])
-        self.contact_points_m = np.concatenate(points)
-        self.contact_forces_n = np.concatenate(vectors)
-        return forces
+        self.contact_points_m, self.contact_forces_n = np.zeros((0, 3)), np.zeros((0, 3))
+        if not d.ncon:
+            return np.zeros(N_TAXELS)
+        contact = d.contact
+        geom = contact.geom
+        bodies = np.where(geom >= 0, m.geom_bodyid[np.maximum(geom, 0)], -1)
+        pad_side = np.where(bodies >= 0, self._pad_of_body[np.maximum(bodies, 0)], -1)
+        touching = np.flatnonzero((pad_side >= 0).any(axis=1) & (contact.efc_address >= 0))
+        if not touching.size:
+            return np.zeros(N_TAXELS)
+        normal = self._normal_forces(touching)
+        side = pad_side[touching]
+        pad = side.T.reshape(-1)  # each contact's first side's pad, then its second side's
+        row = np.tile(np.arange(touching.size), 2)
+        valid = (pad >= 0) & (normal[row] > 0)
+        valid[touching.size :] &= side[:, 1] != side[:, 0]
+        pad, row = pad[valid], row[valid]
+        order = np.lexsort((row, pad))
+        pad, row = pad[order], row[order]
+        idx, fn = touching[row], normal[row]
+        body = self._pad_body[pad]
+        rot = d.xmat[body].reshape(-1, 3, 3)
+        pos = contact.pos[idx]
+        local = np.einsum("pj,pjk->pk", pos - d.xpos[body], rot) - self._pad_origin[pad]
+        uvn = np.einsum("pk,pak->pa", local, self._pad_axes[pad])  # on the pad: u, v, height
+        uv = uvn[:, :2]
+        in_grid = np.all((uv >= self._pad_lo[pad]) & (uv <= self._pad_hi[pad]), axis=1)
+        keep = (uvn[:, 2] >= -FACE_DEPTH_M) & in_grid
+        if not keep.any():
+            return np.zeros(N_TAXELS)
+        pad, uv, fn, pos, rot = pad[keep], uv[keep], fn[keep], pos[keep], rot[keep]
+        dist2 = np.sum((uv[:, None, :] - self._pad_uv[pad]) ** 2, axis=2)
+        weights = np.exp(-dist2 / (2 * SPREAD_SIGMA_M**2))
+        total = weights.sum(axis=1)
+        lost = total < 1e-12  # far from every cell centre: the nearest cell takes it
+        if lost.any():
+            weights[lost] = 0.0
+            weights[lost, np.argmin(dist2[lost], axis=1)] = 1.0
+            total[lost] = 1.0
+        share = (fn / total)[:, None] * weights
+        forces = np.bincount(self._pad_taxels[pad].reshape(-1), share.reshape(-1), N_TAXELS + 1)
+        self.contact_points_m = pos
+        self.contact_forces_n = -fn[:, None] * np.einsum("pij,pj->pi", rot, self._pad_axes[pad, 2])
+        return forces[:N_TAXELS]
 
     def _normal_forces(self, idx: NDArray[np.int64]) -> NDArray[np.float64]:
         """Normal force of contacts idx (as mj_contactForce gives it, without its per-call cost)."""
-        d = self.world.data
-        adr = d.contact.efc_address[idx]
-        if not self._pyramidal:
-            return d.efc_force[adr].copy()
-        rows = np.maximum(2 * (d.contact.dim[idx] - 1), 1)  # pyramid edges; frictionless: one row
-        out = np.zeros(idx.size)
-        for r in np.unique(rows):
-            sel = rows == r
-            out[sel] = d.efc_force[adr[sel, None] + np.arange(r)].sum(axis=1)
-        return out
+        return contact_frame_forces(self.world.data, idx, self._pyramidal, tangents=False)[:, 0]
 
     def pressure_kpa(self) -> NDArray[np.float64]:
         """(162,) true pressure on each taxel now (force over area), before the sensor."""

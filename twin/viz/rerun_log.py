@@ -20,7 +20,7 @@ optional `datafusion` package, which this project does not install.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -106,6 +106,7 @@ def default_blueprint(
         name="Tactile & cameras",
     )
     return rrb.Blueprint(
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE),  # sim time, not the wall clock's log_time
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.Spatial3DView(name="hand and foam", origin="/world"), sensors, row_shares=[3, 1]
@@ -117,8 +118,100 @@ def default_blueprint(
     )
 
 
+ROWS_PER_SEND = 60
+"""Rows of time-varying entities sent to Rerun together, with one send_columns call an entity (2 s of a
+30 Hz stream): a log call a row made Rerun cost half the physics of a run (issue 19). A killed process
+loses what is still pending (at most this many rows an entity) from the .rrd; close() sends it all."""
+
+Columns = tuple[str, type, dict[str, np.ndarray], list[int]]
+"""What one send_columns call takes: entity path, archetype, its components (instances of all the rows
+concatenated) and the number of instances in each row."""
+
+
+class _Pending:
+    """Rows waiting to be sent as columns: their times (ns) and, per value, one array a row whose first
+    axis is the row's instances. `split` turns the concatenated values and the rows' lengths into the
+    columns of one or more entities (e.g. taxel pressures into the colours of every pad), once for all
+    the rows."""
+
+    def __init__(self, split: Callable[[dict[str, np.ndarray], list[int]], list[Columns]]) -> None:
+        self.split = split
+        self.t_ns: list[int] = []
+        self.values: dict[str, list[np.ndarray]] = {}
+
+    def add(self, t_ns: int, values: Mapping[str, np.ndarray]) -> int:
+        """Keep one row (its arrays are kept as given: pass copies); the rows now pending."""
+        self.t_ns.append(t_ns)
+        for name, value in values.items():
+            self.values.setdefault(name, []).append(value)
+        return len(self.t_ns)
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        """Send every pending row, one send_columns call an entity, and forget them."""
+        if not self.t_ns:
+            return
+        lengths = [len(v) for v in next(iter(self.values.values()))]
+        stacked = {name: np.concatenate(rows) for name, rows in self.values.items()}
+        t_ns = np.array(self.t_ns, dtype=np.int64).astype("timedelta64[ns]")
+        times = rr.TimeColumn(TIMELINE, duration=t_ns)
+        self.t_ns, self.values = [], {}
+        for path, archetype, components, row_lengths in self.split(stacked, lengths):
+            columns = archetype.columns(**components).partition(row_lengths)
+            rec.send_columns(path, indexes=[times], columns=columns)
+
+
+def _as_is(path: str, archetype: type) -> Callable[[dict, list[int]], list[Columns]]:
+    """Pending rows of one entity, sent as they were kept."""
+    return lambda stacked, lengths: [(path, archetype, stacked, lengths)]
+
+
+def _mesh(path: str, faces: np.ndarray) -> Callable[[dict, list[int]], list[Columns]]:
+    """Pending mesh rows (vertex positions) with their vertex normals, all rows in one pass."""
+
+    def split(stacked: dict, lengths: list[int]) -> list[Columns]:
+        verts = stacked["vertex_positions"]
+        normals = _vertex_normals(verts.reshape(len(lengths), -1, 3), faces).reshape(-1, 3)
+        return [(path, rr.Mesh3D, {"vertex_positions": verts, "vertex_normals": normals}, lengths)]
+
+    return split
+
+
+def _bodies(paths: list[str]) -> Callable[[dict, list[int]], list[Columns]]:
+    """Pending poses of every moving body (one row: all of them) as each body's Transform3D rows."""
+
+    def split(stacked: dict, lengths: list[int]) -> list[Columns]:
+        rows = len(lengths)
+        xyz = stacked["translation"].reshape(rows, len(paths), 3)
+        quat = stacked["quaternion"].reshape(rows, len(paths), 4)
+        return [
+            (path, rr.Transform3D, {"translation": xyz[:, j], "quaternion": quat[:, j]}, [1] * rows)
+            for j, path in enumerate(paths)
+        ]
+
+    return split
+
+
+def _taxels(boxes: str, pads: list[tuple[str, np.ndarray]]) -> Callable[[dict, list[int]], list[Columns]]:
+    """Pending scans (162 pressures a row, kPa) as the heatmap colours of the 2-D boxes and of each pad's
+    taxels on the hand."""
+
+    def split(stacked: dict, lengths: list[int]) -> list[Columns]:
+        rows = len(lengths)
+        colors = _heat(stacked["pressure_kpa"] / PRESSURE_FULL_SCALE_KPA).reshape(rows, -1, 3)
+        out: list[Columns] = [(boxes, rr.Boxes2D, {"colors": colors.reshape(-1, 3)}, lengths)]
+        for path, ids in pads:
+            out.append((path, rr.Points3D, {"colors": colors[:, ids].reshape(-1, 3)}, [len(ids)] * rows))
+        return out
+
+    return split
+
+
 class RunRecording:
-    """One Rerun recording of a run, saved to an .rrd file, with the default blueprint."""
+    """One Rerun recording of a run, saved to an .rrd file, with the default blueprint.
+
+    Time-varying entities of the 3-D scene, the pads and the plots are sent in columns of
+    ROWS_PER_SEND rows; parts that do not change (a mesh's triangles and colour, the taxels' places,
+    the arrows' colour) go with an entity's first row only, and the viewer carries them forward."""
 
     def __init__(
         self,
@@ -143,19 +236,60 @@ class RunRecording:
         self._bodies: list[tuple[int, str]] = []
         self._welded: list[tuple[int, str]] = []
         self._closed = False
-        self._tactile_static: tuple[np.ndarray, np.ndarray] | None = None
         self._body_paths: dict[str, str] = {}
         self._stereo = False
         self._depth_from_disparity: tuple[float, float, float] | None = None
+        self._pending: dict[str, _Pending] = {}
+        self._started: set[str] = set()
+        """Entities whose first, complete row has been logged (later rows carry what changes only)."""
+        self._body_ids = np.zeros(0, dtype=int)
+        self._time_s: float | None = None
+        """The current time (s): the rows logged now go there."""
+        self._time_set: float | None = None
+        """The time last given to Rerun's set_time (only logs made now, not pending rows, need it)."""
+        self._t_ns = 0
+        self._tactile_pads: list[tuple[str, np.ndarray]] = []
 
     def _send_blueprint(self) -> None:
         self.rec.send_blueprint(default_blueprint(streams=self._plot_streams, stereo=self._stereo))
 
-    def _open(self, t_s: float | None) -> None:
+    def _open(self, t_s: float | None, *, pending_only: bool = False) -> None:
+        """Check the recording is open and make t_s the current time. `pending_only`: the caller only
+        keeps rows pending (or calls _sync_time before logging now), so Rerun's time is set lazily."""
         if self._closed:
             raise RuntimeError(f"recording {self.rrd_path} is closed")
-        if t_s is not None:
-            self.rec.set_time(TIMELINE, duration=float(t_s))
+        if t_s is not None and float(t_s) != self._time_s:
+            self._time_s = float(t_s)
+            self._t_ns = round(1e9 * self._time_s)  # as Rerun's set_time rounds it
+        if not pending_only:
+            self._sync_time()
+
+    def _sync_time(self) -> None:
+        """Give Rerun the current time before logging a row now (set_time costs ~10 us a call)."""
+        if self._time_s is not None and self._time_s != self._time_set:
+            self.rec.set_time(TIMELINE, duration=self._time_s)
+            self._time_set = self._time_s
+
+    def _buffer(
+        self,
+        key: str,
+        values: Mapping[str, np.ndarray],
+        split: Callable[[], Callable[[dict, list[int]], list[Columns]]],
+    ) -> None:
+        """Keep one row at the current time under `key` (`split()` makes its columns, asked once); send
+        the rows once ROWS_PER_SEND wait."""
+        pending = self._pending.get(key)
+        if pending is None:
+            pending = self._pending[key] = _Pending(split())
+        if pending.add(self._t_ns, values) >= ROWS_PER_SEND:
+            pending.send(self.rec)
+
+    def _first(self, path: str) -> bool:
+        """True (once) when `path` has no row yet: log its complete first row."""
+        if path in self._started:
+            return False
+        self._started.add(path)
+        return True
 
     def log_model(self, model: mujoco.MjModel) -> None:
         """Static geometry of the visual geoms (group < 3) under their bodies; remembers flex surfaces."""
@@ -186,6 +320,7 @@ class RunRecording:
             fixed = model.body_weldid[b] == 0
             (self._welded if fixed else self._bodies).append((b, f"world/bodies/{bodies[b]}"))
             self._body_paths[bodies[b]] = f"world/bodies/{bodies[b]}"
+        self._body_ids = np.array([b for b, _ in self._bodies], dtype=int)
         for f, name in enumerate(_unique([_name(model, "flex", f) for f in range(model.nflex)])):
             self._flex.append(
                 (
@@ -199,67 +334,81 @@ class RunRecording:
 
     def log_scene(self, t_s: float, data: mujoco.MjData) -> None:
         """Body world poses and the flex meshes (positions, normals) at sim time t_s."""
-        self._open(t_s)
+        self._open(t_s, pending_only=True)
         for b, path in self._welded:
             self.rec.log(path, _pose(data, b), static=True)
         self._welded = []
-        for b, path in self._bodies:
-            self.rec.log(path, _pose(data, b))
+        if self._bodies:
+            values = {
+                "translation": data.xpos[self._body_ids],  # fancy indexing: copies, as pending rows must be
+                "quaternion": data.xquat[self._body_ids][:, [1, 2, 3, 0]],  # MuJoCo's wxyz, Rerun's xyzw
+            }
+            self._buffer("world/bodies", values, lambda: _bodies([path for _, path in self._bodies]))
         for path, adr, num, dim, faces in self._flex:
-            verts = np.asarray(data.flexvert_xpos[adr : adr + num], dtype=np.float32)
+            verts = np.array(data.flexvert_xpos[adr : adr + num], dtype=np.float32)
             if dim == 1:  # a cable: its edges
+                self._sync_time()
                 self.rec.log(path, rr.LineStrips3D(verts[faces], colors=[FOAM_RGB]))
-                continue
-            self.rec.log(
-                path,
-                rr.Mesh3D(
+            elif self._first(path):
+                self._sync_time()
+                normals = _vertex_normals(verts, faces)
+                mesh = rr.Mesh3D(
                     vertex_positions=verts,
                     triangle_indices=faces,
-                    vertex_normals=_vertex_normals(verts, faces),
+                    vertex_normals=normals,
                     albedo_factor=[*FOAM_RGB, 255],
-                ),
-            )
+                )
+                self.rec.log(path, mesh)
+            else:
+                self._buffer(path, {"vertex_positions": verts}, lambda p=path, f=faces: _mesh(p, f))
 
     def log_tactile(self, t_s: float, pressure_kpa: ArrayLike, pad_force_n: ArrayLike) -> None:
         """Pads as heatmaps in their layout (2-D), taxels coloured on the hand (3-D), eq. 6 forces."""
         from twin.tactile.layout import LAYOUT
 
-        self._open(t_s)
-        pressure = np.asarray(pressure_kpa, dtype=float)
-        colors = _heat(pressure / PRESSURE_FULL_SCALE_KPA)
-        if not self._tactile_static:
+        self._open(t_s, pending_only=True)
+        pressure = np.array(pressure_kpa, dtype=float)  # a copy: the row may wait to be sent
+        boxes = f"{TACTILE_ENTITY}/taxels"
+        if self._first(boxes):  # places, sizes and names once; then the colours only
             from twin.tactile.layout import canvas_mm
 
+            self._sync_time()
             centers, half = canvas_mm()
             self.rec.log(
                 f"{TACTILE_ENTITY}/names",
                 rr.Points2D(_pad_label_positions(), labels=list(LAYOUT.pad_names), radii=0.1),
                 static=True,
             )
-            self._tactile_static = (centers, half)
-        centers, half = self._tactile_static
-        self.rec.log(f"{TACTILE_ENTITY}/taxels", rr.Boxes2D(centers=centers, half_sizes=half, colors=colors))
-        for pad_index, pad in enumerate(LAYOUT.pads):
-            body_path = self._body_paths.get(pad.body)
-            if body_path is None:
-                continue
-            ids = np.flatnonzero(LAYOUT.pad_index == pad_index)
-            self.rec.log(
-                f"{body_path}/taxels_{pad.name}",
-                rr.Points3D(LAYOUT.position_m[ids], colors=colors[ids], radii=pad.pitch_m * 0.4),
-            )
+            colors = _heat(pressure / PRESSURE_FULL_SCALE_KPA)
+            self.rec.log(boxes, rr.Boxes2D(centers=centers, half_sizes=half, colors=colors))
+            for pad_index, pad in enumerate(LAYOUT.pads):
+                body_path = self._body_paths.get(pad.body)
+                if body_path is None:
+                    continue
+                ids = np.flatnonzero(LAYOUT.pad_index == pad_index)
+                path = f"{body_path}/taxels_{pad.name}"
+                self._tactile_pads.append((path, ids))
+                self.rec.log(
+                    path, rr.Points3D(LAYOUT.position_m[ids], colors=colors[ids], radii=pad.pitch_m * 0.4)
+                )
+        else:
+            self._buffer(boxes, {"pressure_kpa": pressure}, lambda: _taxels(boxes, self._tactile_pads))
         self.log_scalars(
             "tactile", t_s, {"pad_force_n": pad_force_n}, labels={"pad_force_n": LAYOUT.pad_names}
         )
 
     def log_contacts(self, t_s: float, points_m: ArrayLike, forces_n: ArrayLike) -> None:
         """Contact points and their normal forces as arrows in the 3-D scene (pointing into the pad)."""
-        self._open(t_s)
+        self._open(t_s, pending_only=True)
         points = np.asarray(points_m, dtype=float).reshape(-1, 3)
         vectors = np.asarray(forces_n, dtype=float).reshape(-1, 3) * CONTACT_ARROW_M_PER_N
-        self.rec.log(
-            CONTACTS_ENTITY, rr.Arrows3D(origins=points - vectors, vectors=vectors, colors=[(220, 40, 40)])
-        )
+        if self._first(CONTACTS_ENTITY):
+            self._sync_time()
+            arrows = rr.Arrows3D(origins=points - vectors, vectors=vectors, colors=[(220, 40, 40)])
+            self.rec.log(CONTACTS_ENTITY, arrows)
+        else:
+            values = {"origins": points - vectors, "vectors": vectors}
+            self._buffer(CONTACTS_ENTITY, values, lambda: _as_is(CONTACTS_ENTITY, rr.Arrows3D))
 
     def log_scalars(
         self,
@@ -272,13 +421,13 @@ class RunRecording:
 
         labels[field] names the series of a field (set once, statically); its length must match.
         """
-        self._open(t_s)
+        self._open(t_s, pending_only=True)
         if stream not in self._plot_streams:
             self._plot_streams.append(stream)
             self._send_blueprint()
         for field, value in values.items():
             path = f"plots/{stream}/{field}"
-            arr = np.atleast_1d(np.asarray(value, dtype=np.float64))
+            arr = np.array(value, dtype=np.float64, ndmin=1)  # a copy: the row may wait to be sent
             if arr.ndim != 1:
                 raise ValueError(f"{path}: a time series takes a scalar or a 1-D array, got {arr.shape}")
             if path not in self._series_named and labels and field in labels:
@@ -287,7 +436,7 @@ class RunRecording:
                     raise ValueError(f"{path}: {len(names)} labels for {arr.size} values")
                 self.rec.log(path, rr.SeriesLines(names=names), static=True)
                 self._series_named.add(path)
-            self.rec.log(path, rr.Scalars(arr))
+            self._buffer(path, {"scalars": arr}, lambda p=path: _as_is(p, rr.Scalars))
 
     def log_text(self, t_s: float, text: str, level: str = "INFO") -> None:
         """A line in the run's text log (entity "log")."""
@@ -417,8 +566,12 @@ class RunRecording:
         """Flush and finish the .rrd; safe to call twice."""
         if not self._closed:
             self._closed = True
-            self.rec.flush()
-            self.rec.disconnect()
+            try:
+                for pending in self._pending.values():
+                    pending.send(self.rec)
+            finally:
+                self.rec.flush()
+                self.rec.disconnect()
 
     def __enter__(self) -> RunRecording:
         return self
@@ -573,14 +726,20 @@ def _flex_surface(model: mujoco.MjModel, f: int) -> np.ndarray:
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit vertex normals: the area-weighted sum of the adjacent faces' normals."""
-    a, b, c = (verts[faces[:, i]] for i in range(3))
-    face_n = np.cross(b - a, c - a)
-    normals = np.zeros_like(verts)
-    for i in range(3):
-        np.add.at(normals, faces[:, i], face_n)
+    """Unit vertex normals, (m, 3) of (m, 3) vertices or (r, m, 3) of r frames of them: the area-weighted
+    sum of the adjacent faces' normals (a vertex on no face: 0)."""
+    frames = np.asarray(verts).reshape(-1, *np.shape(verts)[-2:])
+    r, m = frames.shape[:2]
+    corners = [frames[:, faces[:, i]] for i in range(3)]
+    face_n = np.cross(corners[1] - corners[0], corners[2] - corners[0])  # (r, faces, 3)
+    # Each face's normal adds to its three vertices: one bincount per axis over every frame at once.
+    vertex = (np.arange(r)[:, None] * m + faces.T.reshape(3, 1, -1)).reshape(-1)
+    normals = np.empty((r * m, 3), dtype=frames.dtype)
+    for axis in range(3):
+        weights = np.broadcast_to(face_n[None, ..., axis], (3, *face_n.shape[:2])).reshape(-1)
+        normals[:, axis] = np.bincount(vertex, weights=weights, minlength=r * m)
     norm = np.linalg.norm(normals, axis=1, keepdims=True)
-    return normals / np.where(norm > 0, norm, 1.0)
+    return (normals / np.where(norm > 0, norm, 1.0)).reshape(np.shape(verts))
 
 
 def _chunks(rrd_path: Path | str, **filters: object) -> Iterator[Chunk]:
@@ -634,32 +793,21 @@ def read_rrd_meshes(
     rrd_path: Path | str, entity_path: str
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Vertex positions (m, 3), triangles (t, 3) and vertex normals (m, 3 or 0, 3) of each Mesh3D row
-    logged at an entity, in the order logged."""
-    entity_path = "/" + entity_path.lstrip("/")
+    logged at an entity, in time order; a row without triangles has the latest logged before it (as the
+    viewer shows it: RunRecording sends a mesh's triangles with its first row only)."""
     columns = [
         rr.Mesh3D.descriptor_vertex_positions().component,
         rr.Mesh3D.descriptor_triangle_indices().component,
         rr.Mesh3D.descriptor_vertex_normals().component,
     ]
-    rows = []
-    for chunk in _chunks(rrd_path, content=entity_path, components=columns):
-        batch = chunk.to_record_batch()
-        if chunk.entity_path != entity_path or columns[0] not in batch.schema.names:
-            continue
-        cells = [
-            batch.column(c).to_pylist() if c in batch.schema.names else [None] * batch.num_rows
-            for c in columns
-        ]
-        for positions, triangles, normals in zip(*cells, strict=True):
-            if positions is not None:
-                rows.append(
-                    (
-                        np.array(positions, dtype=np.float32).reshape(-1, 3),
-                        np.array(triangles or [], dtype=np.uint32).reshape(-1, 3),
-                        np.array(normals or [], dtype=np.float32).reshape(-1, 3),
-                    )
-                )
-    return rows
+    return [
+        (
+            np.array(cells[columns[0]], dtype=np.float32).reshape(-1, 3),
+            np.array(cells[columns[1]] or [], dtype=np.uint32).reshape(-1, 3),
+            np.array(cells[columns[2]] or [], dtype=np.float32).reshape(-1, 3),
+        )
+        for _, cells in _rows(rrd_path, entity_path, columns, latest_at=True)
+    ]
 
 
 def read_rrd_views(rrd_path: Path | str) -> dict[str, dict[str, object]]:
@@ -693,15 +841,22 @@ def read_rrd_views(rrd_path: Path | str) -> dict[str, dict[str, object]]:
 
 
 def _rows(
-    rrd_path: Path | str, entity_path: str, columns: Sequence[str], timeline: str = TIMELINE
+    rrd_path: Path | str,
+    entity_path: str,
+    columns: Sequence[str],
+    timeline: str = TIMELINE,
+    *,
+    latest_at: bool = False,
 ) -> list[tuple[float | None, dict[str, object]]]:
     """(time in s, or None for a static row; {column: cell}) of each row of an entity that has
-    columns[0], in time order (static rows first)."""
+    columns[0], in time order (static rows first). With `latest_at`, a row that has any of the columns
+    counts, and a column it lacks holds the latest value logged before it (the viewer's latest-at)."""
     entity_path = "/" + entity_path.lstrip("/")
     rows: list[tuple[float | None, dict[str, object]]] = []
     for chunk in _chunks(rrd_path, content=entity_path, components=list(columns)):
         batch = chunk.to_record_batch()
-        if chunk.entity_path != entity_path or columns[0] not in batch.schema.names:
+        wanted = columns if latest_at else columns[:1]
+        if chunk.entity_path != entity_path or not any(c in batch.schema.names for c in wanted):
             continue
         n = batch.num_rows
         cells = {c: batch.column(c).to_pylist() if c in batch.schema.names else [None] * n for c in columns}
@@ -711,12 +866,20 @@ def _rows(
         else:
             times = [None] * n
         for i in range(n):
-            if cells[columns[0]][i] is not None:
+            if any(cells[c][i] is not None for c in wanted):
                 rows.append(
                     (None if times[i] is None else float(times[i]), {c: cells[c][i] for c in columns})
                 )
     rows.sort(key=lambda r: -np.inf if r[0] is None else r[0])
-    return rows
+    if not latest_at:
+        return rows
+    latest: dict[str, object] = dict.fromkeys(columns)
+    out = []
+    for t, cells in rows:
+        latest.update({c: v for c, v in cells.items() if v is not None})
+        if latest[columns[0]] is not None:
+            out.append((t, dict(latest)))
+    return out
 
 
 def read_rrd_pinholes(rrd_path: Path | str) -> dict[str, tuple[np.ndarray, tuple[int, int]]]:
@@ -757,10 +920,11 @@ def read_rrd_points(
     rrd_path: Path | str, entity_path: str
 ) -> list[tuple[float | None, np.ndarray, np.ndarray]]:
     """(time s, positions (n, 3), colours (n, 4) RGBA uint8 or (0, 4)) of each Points3D row, in time
-    order."""
+    order; a row that changes the colours only has the positions logged before it (the viewer's
+    latest-at: RunRecording sends the taxels' places with their first row only)."""
     columns = [rr.Points3D.descriptor_positions().component, rr.Points3D.descriptor_colors().component]
     out = []
-    for t, cells in _rows(rrd_path, entity_path, columns):
+    for t, cells in _rows(rrd_path, entity_path, columns, latest_at=True):
         colors = np.array(cells[columns[1]] or [], dtype=np.uint32)
         rgba = ((colors[:, None] >> np.array([24, 16, 8, 0], dtype=np.uint32)) & 0xFF).astype(np.uint8)
         out.append((t, np.array(cells[columns[0]], dtype=np.float32).reshape(-1, 3), rgba.reshape(-1, 4)))

@@ -354,7 +354,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     table = Table(title="Foam library")
-    for col in ("name", "shape", "size (mm)", "E (kPa)", "nu", "class", "density", "mass (g)", "dof"):
+    for col in ("name", "shape", "size (mm)", "E (kPa)", "nu", "class", "density", "mass (g)", "fidelity"):
         table.add_column(col)
     for p in LIBRARY.values():
         table.add_row(
@@ -366,7 +366,7 @@ def cmd_objects(args: argparse.Namespace) -> int:
             p.stiffness_class,
             f"{p.density_kg_m3:g}",
             f"{p.mass_kg * 1e3:.1f}",
-            f"{p.dof} {p.resolution}^3",
+            p.fidelity,
         )
     Console().print(table)
     return 0

@@ -11,7 +11,7 @@ def test_realtime_rows_are_positive_ratios():
     (row,) = results["rows"]
     assert row["physics_rtf"] > 0 and row["rig_rtf"] > 0 and row["full_run_rtf"] > 0
     assert row["rig_hand_rtf"] > 0 and row["scan_ms"] > 0
-    assert "| block (default) | trilinear |" in realtime.to_markdown(results)
+    assert "| block (default) | fast | trilinear |" in realtime.to_markdown(results)
 
 
 def test_serial_cycle_rows_carry_the_wire_limit_beside_the_rate():

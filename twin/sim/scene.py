@@ -35,10 +35,11 @@ def scene_mjcf(foam: FoamParams | None = None, *, cameras: bool = False) -> mjcf
     return root
 
 
-VOLUMETRIC_SOLVER = {"solver": "CG", "tolerance": 1e-5, "iterations": 200}
+VOLUMETRIC_SOLVER = {"solver": "CG", "tolerance": 1e-5, "iterations": 120}
 """Solver options a volumetric foam needs: MuJoCo's discrete integrator solves M + h^2 K by PCG, whose
-residual target is `tolerance`; with light vertices and h^2 K >> M it stops short at 1e-8 or 100
-iterations (mjWARN_INERTIA), and CG is ~1.5x faster than Newton here (benchmarks/foam_fidelity.py)."""
+residual target is `tolerance` and whose cap is `iterations`; with light vertices and h^2 K >> M it stops
+short at 1e-8 (mjWARN_INERTIA). With the preset's vertex armature 120 iterations suffice; CG is ~1.8x
+faster than Newton here (benchmarks/foam_solver_study.py)."""
 
 
 def foam_mesh(foam: FoamParams) -> TetMesh:
@@ -58,7 +59,12 @@ def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
     common = dict(name=FOAM_NAME, dim=3, pos=[0.0, 0.0, z], radius=0.001, dof=disc.dof, rgba=list(foam.rgba))
     if disc.volumetric:
         mesh = foam_mesh(foam)
-        fc = root.worldbody.add(
+        parent = root.worldbody
+        if disc.armature_kg:  # the vertex joints flexcomp makes take their default from the frame's class
+            cls = root.default.add("default", dclass=f"{FOAM_NAME}_vertex")
+            cls.joint.armature = disc.armature_kg
+            parent = root.worldbody.add("body", name=f"{FOAM_NAME}_frame", childclass=f"{FOAM_NAME}_vertex")
+        fc = parent.add(
             "flexcomp",
             type="direct",
             point=mesh.points_m.ravel().tolist(),

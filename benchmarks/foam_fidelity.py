@@ -191,6 +191,27 @@ def face_profile_error_mm(sim: dict[str, Any], case: str, foam: FoamParams) -> t
     return err, scale
 
 
+def mid_height_profile_mm(sim: dict[str, Any], case: str, foam: FoamParams) -> dict[str, list[float]]:
+    """The indented side at 6 mm along its mid-height line: the sim's vertices within half an edge of it
+    and the FEM's line, displacement against x (mm), for the face-profile plot."""
+    from benchmarks import fem_reference
+
+    ref = fem_reference.profile(case)
+    rest, moved = sim["rest"], sim["shape_6mm"]
+    z_ref = 0.0 if foam.shape == "sphere" else foam.size_m[2] / 2
+    nearest = ref["z_m"][np.argmin(np.abs(ref["z_m"] - z_ref))]  # the FEM's grid row nearest mid-height
+    line = np.abs(ref["z_m"] - nearest) < 1e-9
+    order = np.argsort(ref["x_m"][line])
+    front = rest[:, 1] < rest[:, 1].min() + foam.edge_m / 2
+    near = front & (np.abs(rest[:, 2] - sim["centre_z_m"]) < foam.edge_m / 2)
+    return {
+        "fem_x_mm": (ref["x_m"][line][order] * 1e3).tolist(),
+        "fem_u_mm": (ref["uy_m"][line][order] * 1e3).tolist(),
+        "sim_x_mm": (rest[near, 0] * 1e3).tolist(),
+        "sim_u_mm": ((moved[near, 1] - rest[near, 1]) * 1e3).tolist(),
+    }
+
+
 def outside_bracket(value: float, low: float, high: float) -> float:
     """Relative distance of value outside [low, high] (0 inside), against the bracket's nearer end."""
     if value < low:
@@ -240,7 +261,9 @@ def evaluate(config: Config) -> dict[str, Any]:
             profile_case = f"{name}/punch_bonded"
             extra = {"fem_bonded_n": bonded.tolist(), "fem_slipping_n": slipping.tolist()}
         face, face_scale = face_profile_error_mm(sim, profile_case, foam)
+        line = mid_height_profile_mm(sim, profile_case, foam) if case == "block/punch" else None
         rows[case] = {
+            "line": line,
             "force_n": sim["force_n"],
             "error": errors,
             "face_rms_mm": face,
@@ -337,6 +360,11 @@ def _worst(row: dict[str, Any], kind: str) -> float:
     return max(errs)
 
 
+def _rtf(value: float) -> str:
+    """A real-time factor, or '-' where it was not measured (the rig runs at the hand model's step)."""
+    return "-" if math.isnan(value) else f"{value:.2f}x"
+
+
 def _pct(values: list[float]) -> str:
     return " / ".join(f"{100 * v:+.0f}%" for v in values)
 
@@ -370,7 +398,7 @@ def to_markdown(results: dict[str, Any]) -> str:
         lines.append(
             f"| {c.label} | {row['cases']['block/punch']['vertices']} | {100 * _worst(row, 'punch'):.0f}% "
             f"| {100 * _worst(row, 'sphere'):.0f}% | {face['face_rms_mm']:.2f} ({face['face_scale_mm']:.2f}) "
-            f"| {_pct(row['uniaxial']['error'])} | {row['rtf_min']:.2f}x | {row['rig_rtf']:.2f}x | {warn} |"
+            f"| {_pct(row['uniaxial']['error'])} | {row['rtf_min']:.2f}x | {_rtf(row['rig_rtf'])} | {warn} |"
         )
     for row in results["rows"]:
         c = row["config"]
@@ -410,7 +438,13 @@ def to_markdown(results: dict[str, Any]) -> str:
             f"| {' / '.join(f'{v:.2f}' for v in r['force_n'])} | {_pct(r['error'])} "
             f"| {r['face_rms_mm']:.2f} ({r['face_scale_mm']:.2f}) | {r['rtf']:.3f}x | {warn} |"
         )
-    lines += ["", "![force against depth, FEM bracket shaded](benchmarks/foam_fidelity.png)", ""]
+    lines += [
+        "",
+        "![force against depth, FEM bracket shaded](benchmarks/foam_fidelity.png)",
+        "",
+        "![the block's face at 6 mm along its mid-height line](benchmarks/foam_fidelity_profile.png)",
+        "",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -442,5 +476,30 @@ def plot(results: dict[str, Any], path: str) -> None:
         ax.set_xlabel("depth (mm)")
         ax.set_ylabel("force (N)")
     axes.ravel()[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    profile_plot(results, path.replace(".png", "_profile.png"))
+
+
+def profile_plot(results: dict[str, Any], path: str) -> None:
+    """The block's indented face at 6 mm along its mid-height line: the FEM and each discretization."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    first = results["rows"][0]["cases"]["block/punch"]["line"]
+    ax.plot(first["fem_x_mm"], first["fem_u_mm"], "k", lw=2, label="FEM (bonded punch)")
+    ax.axvspan(-PUNCH_HALF_M[0] * 1e3, PUNCH_HALF_M[0] * 1e3, color="0.9", label="punch")
+    for row in results["rows"]:
+        line = row["cases"]["block/punch"]["line"]
+        order = np.argsort(line["sim_x_mm"])
+        ax.plot(np.array(line["sim_x_mm"])[order], np.array(line["sim_u_mm"])[order], "o-", ms=3, lw=1,
+                label=row["config"].label)  # fmt: skip
+    ax.set_xlabel("x across the face (mm)")
+    ax.set_ylabel("face displacement at 6 mm (mm)")
+    ax.set_title("block under the fingertip-sized punch: the face at mid-height")
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -156,7 +156,8 @@ def to_markdown(results: dict) -> str:
         "| --- | --- | --- | --- | --- | --- | " + " | ".join("---" for _ in parts) + " |",
     ]
     for r in results["rows"]:
-        default = " (default)" if r["object"] == DEFAULT_OBJECT else ""
+        is_default = (r["object"], r.get("fidelity")) == (DEFAULT_OBJECT, LIBRARY[DEFAULT_OBJECT].fidelity)
+        default = " (default)" if is_default else ""
         shares = " | ".join(f"{r['parts_s'][p] / r['physics_s']:.2f}" for p in parts)
         lines.append(
             f"| {r['object']}{default} | {r.get('fidelity', 'fast')} | {r['physics_s']:.2f} s | "

@@ -7,8 +7,10 @@ gmsh (a global singleton in the process) builds the meshes, one call at a time u
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import math
+import signal
 import threading
 import warnings
 from dataclasses import dataclass
@@ -116,15 +118,27 @@ def _mm(extent_m: tuple[float, ...] | np.ndarray) -> str:
 # ---------------------------------------------------------------------------------------------- gmsh
 
 
+def _restore_sigpipe(disposition: Any) -> None:
+    """Put SIGPIPE back as it was: gmsh.initialize resets it to the default (terminate), under Python's
+    feet, so a write to a closed socket would then kill the interpreter (exit 141) instead of raising
+    BrokenPipeError. libc's signal() rather than signal.signal: it works from any thread."""
+    if disposition in (signal.SIG_IGN, signal.SIG_DFL):
+        ctypes.CDLL(None).signal(signal.SIGPIPE, ctypes.c_void_p(int(disposition)))
+    elif threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGPIPE, disposition)
+
+
 class _Gmsh:
     """Context for one gmsh session: the lock held, initialized silent and single-threaded, always finalized.
 
-    interruptible=False keeps gmsh from installing a SIGINT handler, which only the main thread may do."""
+    interruptible=False keeps gmsh from installing a SIGINT handler, which only the main thread may do;
+    the SIGPIPE disposition gmsh resets is restored on the way out (_restore_sigpipe)."""
 
     def __enter__(self) -> Any:
         import gmsh  # imported lazily: only meshing needs it
 
         _GMSH_LOCK.acquire()
+        self._sigpipe = signal.getsignal(signal.SIGPIPE)
         try:
             gmsh.initialize(readConfigFiles=False, interruptible=False)
             gmsh.option.setNumber("General.Terminal", 0)
@@ -145,13 +159,15 @@ class _Gmsh:
     def __exit__(self, *exc: object) -> None:
         self._finalize(self._gmsh)
 
-    @staticmethod
-    def _finalize(gmsh: Any) -> None:
+    def _finalize(self, gmsh: Any) -> None:
         try:
             if gmsh.isInitialized():
                 gmsh.finalize()
         finally:
-            _GMSH_LOCK.release()
+            try:
+                _restore_sigpipe(self._sigpipe)
+            finally:
+                _GMSH_LOCK.release()
 
 
 def _set_uniform_size(gmsh: Any, edge_m: float) -> None:

@@ -401,3 +401,30 @@ def test_meshes_step_in_mujoco_without_warnings(shape: str) -> None:
     assert np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all()
     assert data.flexvert_xpos[:, 2].min() > -0.005, "the foam fell through the floor"
     assert data.ncon > 0, "the foam never reached the floor"
+
+
+def test_meshing_leaves_sigpipe_ignored_so_a_closed_socket_raises_instead_of_killing():
+    """gmsh.initialize resets SIGPIPE to terminate; after meshing (main thread or a worker), a write to a
+    closed socket must still raise BrokenPipeError, not kill the interpreter with exit 141 (it killed
+    pytest workers running the hand's vanished-port tests)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import socket, threading\n"
+        "from twin.sim.tetmesh import primitive_mesh\n"
+        "def closed_write():\n"
+        "    a, b = socket.socketpair(); b.close()\n"
+        "    try:\n"
+        "        a.send(b'x' * 10); a.send(b'x' * 10)\n"
+        "    except BrokenPipeError:\n"
+        "        print('raised')\n"
+        "primitive_mesh('block', (0.06, 0.06, 0.07), 0.02)\n"
+        "closed_write()\n"
+        "t = threading.Thread(target=primitive_mesh, args=('sphere', (0.07, 0.07, 0.07), 0.02))\n"
+        "t.start(); t.join()\n"
+        "closed_write()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, (done.returncode, done.stderr[-500:])
+    assert done.stdout.split() == ["raised", "raised"]

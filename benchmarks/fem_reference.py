@@ -73,6 +73,7 @@ from skfem.helpers import ddot, det, grad, inv, mul, transpose
 from skfem.models.elasticity import lame_parameters, linear_elasticity
 
 from twin.sim.foam import LIBRARY
+from twin.sim.tetmesh import gmsh_session
 
 CACHE_PATH = pathlib.Path(__file__).with_name("fem_reference.json")
 PUNCH_HALF_X_M = 0.0115  # 23 mm wide fingertip face (the BH8 fingertip, like foam_discretization.py)
@@ -123,8 +124,7 @@ class Setup:
 def build_mesh(s: Setup, h_fine_m: float) -> MeshTet:
     """gmsh tetrahedral mesh of the half (or quarter) object, fine at the indenter, finer at the wall."""
     x, y, z = s.size_m
-    gmsh.initialize(interruptible=False)
-    try:
+    with gmsh_session():
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add("foam")
@@ -145,8 +145,6 @@ def build_mesh(s: Setup, h_fine_m: float) -> MeshTet:
         gmsh.model.mesh.generate(3)
         tags, coords, _ = gmsh.model.mesh.getNodes()
         _, elem_nodes = gmsh.model.mesh.getElementsByType(4)
-    finally:
-        gmsh.finalize()
     points = coords.reshape(-1, 3)
     index = np.zeros(int(tags.max()) + 1, dtype=np.int64)
     index[tags.astype(np.int64)] = np.arange(len(tags))

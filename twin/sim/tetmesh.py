@@ -7,12 +7,14 @@ gmsh (a global singleton in the process) builds the meshes, one call at a time u
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import math
 import signal
 import threading
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -128,46 +130,42 @@ def _restore_sigpipe(disposition: Any) -> None:
         signal.signal(signal.SIGPIPE, disposition)
 
 
-class _Gmsh:
-    """Context for one gmsh session: the lock held, initialized silent and single-threaded, always finalized.
+@contextlib.contextmanager
+def gmsh_session() -> Iterator[Any]:
+    """gmsh, initialized under the process-wide lock, silent, always finalized, with SIGPIPE restored.
 
-    interruptible=False keeps gmsh from installing a SIGINT handler, which only the main thread may do;
-    the SIGPIPE disposition gmsh resets is restored on the way out (_restore_sigpipe)."""
+    gmsh is one global state per process: every caller (the foam mesher, the FEM reference) goes through
+    here. interruptible=False keeps gmsh from installing a SIGINT handler, which only the main thread may
+    do; the SIGPIPE disposition gmsh resets is put back on the way out (_restore_sigpipe)."""
+    import gmsh  # imported lazily: only meshing needs it
 
-    def __enter__(self) -> Any:
-        import gmsh  # imported lazily: only meshing needs it
-
-        _GMSH_LOCK.acquire()
-        self._sigpipe = signal.getsignal(signal.SIGPIPE)
+    with _GMSH_LOCK:
+        sigpipe = signal.getsignal(signal.SIGPIPE)
         try:
             gmsh.initialize(readConfigFiles=False, interruptible=False)
             gmsh.option.setNumber("General.Terminal", 0)
             gmsh.option.setNumber("General.Verbosity", 0)
-            gmsh.option.setNumber("General.NumThreads", 1)
-            gmsh.option.setNumber("Mesh.MaxNumThreads1D", 1)
-            gmsh.option.setNumber("Mesh.MaxNumThreads2D", 1)
-            gmsh.option.setNumber("Mesh.MaxNumThreads3D", 1)
-            gmsh.option.setNumber("Mesh.Algorithm", _GMSH_FRONTAL_DELAUNAY_2D)
-            gmsh.option.setNumber("Mesh.Algorithm3D", _GMSH_DELAUNAY_3D)
-            gmsh.model.add("foam")
-        except BaseException:
-            self._finalize(gmsh)
-            raise
-        self._gmsh = gmsh
-        return gmsh
-
-    def __exit__(self, *exc: object) -> None:
-        self._finalize(self._gmsh)
-
-    def _finalize(self, gmsh: Any) -> None:
-        try:
-            if gmsh.isInitialized():
-                gmsh.finalize()
+            yield gmsh
         finally:
             try:
-                _restore_sigpipe(self._sigpipe)
+                if gmsh.isInitialized():
+                    gmsh.finalize()
             finally:
-                _GMSH_LOCK.release()
+                _restore_sigpipe(sigpipe)
+
+
+@contextlib.contextmanager
+def _foam_gmsh() -> Iterator[Any]:
+    """A gmsh session set up for the foam meshes: single-threaded (deterministic), fixed algorithms."""
+    with gmsh_session() as gmsh:
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.option.setNumber("Mesh.MaxNumThreads1D", 1)
+        gmsh.option.setNumber("Mesh.MaxNumThreads2D", 1)
+        gmsh.option.setNumber("Mesh.MaxNumThreads3D", 1)
+        gmsh.option.setNumber("Mesh.Algorithm", _GMSH_FRONTAL_DELAUNAY_2D)
+        gmsh.option.setNumber("Mesh.Algorithm3D", _GMSH_DELAUNAY_3D)
+        gmsh.model.add("foam")
+        yield gmsh
 
 
 def _set_uniform_size(gmsh: Any, edge_m: float) -> None:
@@ -260,7 +258,7 @@ def _check_estimate(volume_m3: float, edge_m: float, what: str) -> None:
 
 @functools.lru_cache(maxsize=64)
 def _primitive_mesh_cached(shape: str, size_m: tuple[float, float, float], edge_m: float) -> TetMesh:
-    with _Gmsh() as gmsh:
+    with _foam_gmsh() as gmsh:
         occ = gmsh.model.occ
         x, y, z = size_m
         if shape == "block":
@@ -480,7 +478,7 @@ def _file_mesh_cached(path: str, key: tuple[int, int], edge_m: float, scale: flo
 
 def _tetrahedralise(surface: Surface, edge_m: float, where: str) -> TetMesh:
     """Re-mesh the surface at edge_m with gmsh (classify, re-parametrise) and fill it with tetrahedra."""
-    with _Gmsh() as gmsh:
+    with _foam_gmsh() as gmsh:
         model = gmsh.model
         centre = (surface.points_m.min(axis=0) + surface.points_m.max(axis=0)) / 2.0
         entity = model.addDiscreteEntity(2)

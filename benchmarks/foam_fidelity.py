@@ -24,6 +24,7 @@ Speed: bench steps/s and real-time factor (the foam alone, with the indenter).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -170,6 +171,14 @@ def simulate(foam: FoamParams, indenter: str, timestep_s: float = 0.002) -> dict
     }
 
 
+@functools.cache
+def _fem_cache() -> dict[str, Any]:
+    """The FEM reference's cache (benchmarks/fem_reference.json), read once per process."""
+    from benchmarks import fem_reference  # scikit-fem and gmsh: only where the FEM is read
+
+    return fem_reference.load_cache()
+
+
 def face_profile_error_mm(sim: dict[str, Any], case: str, foam: FoamParams) -> tuple[float, float]:
     """(RMS of the sim's indented-side y displacement against the FEM's, RMS of the FEM's own) at 6 mm (mm).
 
@@ -177,7 +186,7 @@ def face_profile_error_mm(sim: dict[str, Any], case: str, foam: FoamParams) -> t
     are compared with the FEM profile interpolated at their rest (x, z)."""
     from benchmarks import fem_reference  # scikit-fem and gmsh: only where the FEM is read
 
-    ref = fem_reference.profile(case)
+    ref = fem_reference.profile(case, _fem_cache())
     rest, moved = sim["rest"], sim["shape_6mm"]
     z0 = sim["centre_z_m"] if foam.shape == "sphere" else sim["bottom_z_m"]
     xz = np.c_[rest[:, 0], rest[:, 2] - z0]
@@ -196,7 +205,7 @@ def mid_height_profile_mm(sim: dict[str, Any], case: str, foam: FoamParams) -> d
     and the FEM's line, displacement against x (mm), for the face-profile plot."""
     from benchmarks import fem_reference
 
-    ref = fem_reference.profile(case)
+    ref = fem_reference.profile(case, _fem_cache())
     rest, moved = sim["rest"], sim["shape_6mm"]
     z_ref = 0.0 if foam.shape == "sphere" else foam.size_m[2] / 2
     nearest = ref["z_m"][np.argmin(np.abs(ref["z_m"] - z_ref))]  # the FEM's grid row nearest mid-height
@@ -237,7 +246,7 @@ def evaluate(config: Config) -> dict[str, Any]:
     """Every library case for one discretization: errors against the FEM and analytic checks, and speed."""
     from benchmarks import fem_reference
 
-    cache = fem_reference.load_cache()
+    cache = _fem_cache()
     rows: dict[str, Any] = {}
     speed = []
     warnings: dict[str, int] = {}
@@ -315,8 +324,8 @@ def convergence(resolutions: tuple[int, ...]) -> list[dict[str, Any]]:
     """The block/punch case of the faithful foam at each resolution: forces, bracket errors, face, speed."""
     from benchmarks import fem_reference
 
-    _, bonded = fem_reference.force_depth("block/punch_bonded")
-    _, slipping = fem_reference.force_depth("block/punch_slipping")
+    _, bonded = fem_reference.force_depth("block/punch_bonded", _fem_cache())
+    _, slipping = fem_reference.force_depth("block/punch_slipping", _fem_cache())
     rows = []
     for resolution in resolutions:
         foam = Config("", "faithful", resolution).foam("block")
@@ -342,14 +351,13 @@ def rig_rtf(config: Config, duration_s: float) -> float:
 
 def run(quick: bool = False) -> dict[str, Any]:
     """Every configuration against the references, with the rig's speed for the block."""
-    from benchmarks import fem_reference
 
     rows = []
     for config in QUICK_CONFIGS if quick else CONFIGS:
         result = evaluate(config)
         result["rig_rtf"] = rig_rtf(config, 2.0 if quick else 8.0)
         rows.append(result)
-    cache = fem_reference.load_cache()
+    cache = _fem_cache()
     conv = convergence(CONVERGENCE_RESOLUTIONS[:1] if quick else CONVERGENCE_RESOLUTIONS)
     return {"rows": rows, "convergence": conv, "fem": cache["provenance"], "fem_cases": cache["cases"]}
 

@@ -128,9 +128,9 @@ class FoamParams:
         if self.shape == "cylinder":
             return math.pi * (x / 2) * (y / 2) * z
         if self.shape == "mesh":
-            from twin.sim.tetmesh import file_mesh  # imports gmsh: only for mesh foams
+            from twin.sim.scene import foam_mesh  # gmsh: only for mesh foams; the scene's (cached) mesh
 
-            return file_mesh(Path(self.mesh_file), self.edge_m, self.mesh_scale_m).volume_m3
+            return foam_mesh(self).volume_m3
         return 4.0 / 3.0 * math.pi * (x / 2) * (y / 2) * (z / 2)
 
     @property
@@ -273,7 +273,6 @@ def mesh_object(path: Path, material: FoamParams, scale_m: float = 0.001) -> Foa
         mesh_scale_m=scale_m,
         size_m=tuple(float(e) for e in extent),
         fidelity="faithful",
-        stiffness_class=material.stiffness_class,
     )
 
 

@@ -81,6 +81,13 @@ def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
     g.add_argument("--density", type=finite(1, 2e4), metavar="KG_M3", help="density (kg/m^3; foams: 10-100)")
     g.add_argument("--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="extents (mm)")
     g.add_argument(
+        "--placement-mm",
+        type=finite(-10, 10),
+        nargs=2,
+        metavar=("X", "Y"),
+        help="where the object's centre sits off the palm's centre (mm, hand frame), each within 10 mm",
+    )
+    g.add_argument(
         "--fidelity",
         choices=("fast", "faithful"),
         help="foam discretization preset: fast (8 trilinear nodes) or faithful (a volumetric mesh)",
@@ -376,17 +383,17 @@ def _foam_from_args(args: argparse.Namespace):
     from twin.sim.foam import get_object, mesh_object
 
     size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
+    placement = tuple(v / 1e3 for v in args.placement_mm) if args.placement_mm else None
     base = get_object(args.object)
     if getattr(args, "object_mesh", None) is not None:
         if size is not None:
             raise ConfigError("--size-mm does not apply to --object-mesh (the mesh gives the size)")
-        if args.fidelity == "fast" or args.dof is not None:
-            raise ConfigError("a mesh foam is always volumetric (faithful, full dof)")
         from twin.sim.scene import foam_mesh
 
         foam = mesh_object(args.object_mesh, base, args.mesh_scale).with_overrides(
             young_pa=args.young, poisson=args.poisson, damping=args.damping,
-            density_kg_m3=args.density, resolution=args.resolution, friction=args.friction,
+            density_kg_m3=args.density, fidelity=args.fidelity, resolution=args.resolution,
+            dof=args.dof, friction=args.friction, placement_m=placement,
         )  # fmt: skip
         foam_mesh(foam)  # tetrahedralise now: a bad mesh fails in one line before anything is written
         return foam
@@ -400,6 +407,7 @@ def _foam_from_args(args: argparse.Namespace):
         resolution=args.resolution,
         dof=args.dof,
         friction=args.friction,
+        placement_m=placement,
     )
 
 

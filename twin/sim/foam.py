@@ -72,6 +72,8 @@ palmar face 12.5 mm inboard: models/barrett_mjcf/README.md)."""
 MAX_HEIGHT_M = 0.110
 """Tallest object the closed fingers still wrap (fingertips reach ~150 mm above the wrist)."""
 MIN_SIZE_M = 0.015
+MAX_PLACEMENT_M = 0.010
+"""Farthest an object's centre may sit from the palm's centre: a lab places it by hand, within millimetres."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,14 +99,20 @@ class FoamParams:
     mesh_scale_m: float = 0.001
     """Metres per mesh-file unit (scanners and CAD export millimetres)."""
     friction: float = 0.8
+    placement_m: tuple[float, float] = (0.0, 0.0)
+    """Where the object's centre sits on the palm, from the palm's centre along the hand frame's x and
+    y (m): a lab places an object by hand, a few millimetres off."""
     stiffness_class: str = ""
     rgba: tuple[float, float, float, float] = (0.95, 0.75, 0.35, 1.0)
 
     def __post_init__(self) -> None:
         preset = PRESETS.get(self.fidelity)
         if preset is not None:  # fill the preset's discretization; validate() refuses an unknown fidelity
-            if self.resolution is None:
-                object.__setattr__(self, "resolution", preset.resolution)
+            if self.resolution is None:  # a mesh foam's surface is always its tetrahedral mesh's
+                mesh = self.shape == "mesh"
+                object.__setattr__(
+                    self, "resolution", PRESETS["faithful" if mesh else self.fidelity].resolution
+                )
             if self.dof is None:
                 object.__setattr__(self, "dof", preset.dof)
         validate(self)
@@ -116,7 +124,7 @@ class FoamParams:
 
     @property
     def edge_m(self) -> float:
-        """Target edge length of a volumetric mesh (m): the longest extent over resolution - 1."""
+        """Target edge length of a tetrahedral mesh (m): the longest extent over resolution - 1."""
         return max(self.size_m) / (self.resolution - 1)
 
     @property
@@ -142,6 +150,7 @@ class FoamParams:
         """Plain-JSON parameters (for `twin objects --json` and run metadata)."""
         d = asdict(self)
         d["size_m"] = list(self.size_m)
+        d["placement_m"] = list(self.placement_m)
         d["rgba"] = list(self.rgba)
         d["mass_kg"] = self.mass_kg
         return d
@@ -173,8 +182,6 @@ def validate(p: FoamParams) -> None:
         _fail(p, f"unknown fidelity '{p.fidelity}' (choose from {', '.join(FIDELITIES)})")
     if (p.shape == "mesh") != bool(p.mesh_file):
         _fail(p, "a mesh foam needs a mesh file, and only a mesh foam takes one")
-    if p.shape == "mesh" and p.fidelity != "faithful":
-        _fail(p, "a mesh foam is always volumetric: use fidelity 'faithful'")
     if p.dof not in DOFS:
         _fail(p, f"unknown discretization '{p.dof}' (choose from {', '.join(DOFS)})")
     if not p.young_pa > 0:
@@ -197,6 +204,15 @@ def validate(p: FoamParams) -> None:
         )
     if not isinstance(p.resolution, int) or not 3 <= p.resolution <= 12:
         _fail(p, f"resolution must be 3-12 vertices per axis, got {p.resolution}")
+    if len(p.placement_m) != 2 or not all(math.isfinite(v) for v in p.placement_m):
+        _fail(p, "placement_m needs 2 finite offsets (x, y)")
+    if max(abs(v) for v in p.placement_m) > MAX_PLACEMENT_M:
+        _fail(
+            p,
+            f"placement {_mm(p.placement_m)} is over {MAX_PLACEMENT_M * 1e3:.0f} mm off the palm centre",
+        )
+    if max(abs(o) + s / 2 for o, s in zip(p.placement_m, p.size_m[:2], strict=False)) > MAX_HALF_WIDTH_M:
+        _fail(p, f"{_mm(p.size_m)} placed {_mm(p.placement_m)} off centre reaches the finger roots")
     if not 0 < p.friction <= 3:
         _fail(p, f"friction must be in (0, 3], got {p.friction:g}")
 
@@ -260,19 +276,21 @@ DEFAULT_OBJECT = "block"
 
 
 def mesh_object(path: Path, material: FoamParams, scale_m: float = 0.001) -> FoamParams:
-    """A faithful foam of the closed surface in `path` (.stl/.obj, `scale_m` metres per unit) with the
-    material of `material`; ConfigError (one line) for a file that is no closed, fitting surface."""
+    """A foam of the closed surface in `path` (.stl/.obj, `scale_m` metres per unit) with the material
+    and fidelity of `material`; ConfigError (one line) for a file that is no closed, fitting surface."""
     from twin.sim.tetmesh import load_surface  # imports meshio: only for mesh foams
 
     surface = load_surface(Path(path), scale_m)
     extent = surface.points_m.max(axis=0) - surface.points_m.min(axis=0)
-    return material.with_overrides(
+    return replace(  # resolution and dof None: the mesh foam's own defaults, not the material's
+        material,
         name=Path(path).stem,
         shape="mesh",
         mesh_file=str(Path(path).resolve()),
         mesh_scale_m=scale_m,
         size_m=tuple(float(e) for e in extent),
-        fidelity="faithful",
+        resolution=None,
+        dof=None,
     )
 
 

@@ -52,12 +52,14 @@ def foam_mesh(foam: FoamParams) -> TetMesh:
 
 
 def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
-    """Add `foam` as a flexcomp resting on the palm, 1 mm above its surface: a tetrahedral mesh of its
-    volume (faithful) or a flexcomp primitive (fast), per its fidelity preset."""
+    """Add `foam` as a flexcomp resting on the palm, 1 mm above its surface at its placement: a
+    tetrahedral mesh of its volume (faithful, and every mesh foam, whose fast preset drives that mesh
+    by 8 trilinear nodes) or a flexcomp primitive (fast), per its fidelity preset."""
     disc = foam.discretization
     z = PALM_SURFACE_Z_M + foam.size_m[2] / 2 + 0.001
-    common = dict(name=FOAM_NAME, dim=3, pos=[0.0, 0.0, z], radius=0.001, dof=disc.dof, rgba=list(foam.rgba))
-    if disc.volumetric:
+    pos = [*foam.placement_m, z]
+    common = dict(name=FOAM_NAME, dim=3, pos=pos, radius=0.001, dof=disc.dof, rgba=list(foam.rgba))
+    if disc.volumetric or foam.shape == "mesh":
         mesh = foam_mesh(foam)
         parent = root.worldbody
         if disc.armature_kg:  # the vertex joints flexcomp makes take their default from the frame's class
@@ -72,8 +74,9 @@ def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
             mass=foam.mass_kg,
             **common,
         )
-        for key, value in VOLUMETRIC_SOLVER.items():
-            setattr(root.option, key, value)
+        if disc.volumetric:
+            for key, value in VOLUMETRIC_SOLVER.items():
+                setattr(root.option, key, value)
     else:
         count = disc.resolution
         spacing = [s / (count - 1) for s in foam.size_m]

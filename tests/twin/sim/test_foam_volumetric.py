@@ -83,9 +83,11 @@ def test_a_fingertip_leaves_a_local_dent_where_the_fast_foam_moves_its_whole_fac
     assert faithful_bulge > 0.2  # squeezed at mid-height, the top face rises
 
 
+@pytest.mark.parametrize("fidelity", ["fast", "faithful"])
 def test_a_mesh_foam_runs_the_compress_procedure_and_reads_back(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    fidelity: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ):
+    """At either fidelity: the fast one drives the same tetrahedral mesh by 8 trilinear nodes."""
     stl = _bumpy_sphere_stl(tmp_path / "bumpy.stl")
     out = tmp_path / "run"
     with caplog.at_level(logging.WARNING, logger="absl"):
@@ -95,6 +97,8 @@ def test_a_mesh_foam_runs_the_compress_procedure_and_reads_back(
                 "compress",
                 "--object-mesh",
                 str(stl),
+                "--fidelity",
+                fidelity,
                 "--duration",
                 "6",
                 "--out",
@@ -106,7 +110,8 @@ def test_a_mesh_foam_runs_the_compress_procedure_and_reads_back(
     run = open_run(out)
     assert run.status == "complete"
     obj = run.metadata["object"]
-    assert obj["shape"] == "mesh" and obj["name"] == "bumpy" and obj["fidelity"] == "faithful"
+    assert obj["shape"] == "mesh" and obj["name"] == "bumpy" and obj["fidelity"] == fidelity
+    assert obj["dof"] == ("trilinear" if fidelity == "fast" else "full") and obj["resolution"] == 6
     assert np.allclose(obj["size_m"], [0.06 * 1.0, 0.06, 0.06], atol=0.006)
     assert run.metadata["mujoco_warnings"] == {}
     assert not [r for r in caplog.records if r.name == "absl"]

@@ -8,9 +8,9 @@ Steps (paper §3.1 and §6.2):
 3. over whole compression cycles: the reaction model R(delta, delta_dot) fitted to the tactile R,
    the same R recovered from the strain gauges through eq. 4 (tau - hand terms over the measured
    moment arm) as a cross-check, and the secant stiffness mean R / mean delta;
-4. the grasp closure (summed drive counts), the grip stiffness (summed gauge torques on summed drive
-   counts) and the thumb's secant and tangent stiffnesses through the material mapping: E with a 95 %
-   interval.
+4. the grip stiffness (summed gauge torques on summed drive counts) and the squeeze stiffness (the
+   fingertips' secants summed), the statistic from which twin.sim.modulus infers E by running the
+   run's procedure in the twin (`twin identify` joins the two; this module reads recordings only).
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twin.identify.hand_dynamics import TERMS, HandDynamics, derivatives, identify_hand
-from twin.identify.material import MappingError, MaterialMap
-from twin.identify.reaction import IdentificationError, ReactionFit, fit_kelvin_voigt, fit_reaction
+from twin.identify.reaction import IdentificationError, ReactionFit, fit_reaction
 from twin.identify.signals import CONTACT_FORCE_N, FingerSignals, load_signals
 from twin.recording import open_run
 from twin.validation import check_run_metadata
@@ -33,13 +32,8 @@ WINDOW_SETTLE_S = 0.5
 """Compression samples skipped after the grasp settles (the balance servo's last transient)."""
 DEFAULT_PERIOD_S = 2.0
 """Cycle length when the run does not record its compression frequency (compress default 0.5 Hz)."""
-THUMB = 2
-"""F3, the finger whose secant stiffness the material mapping uses (twin.identify.material)."""
-CLOSURE_PLACEMENT_SIGMA_KCOUNTS = 0.1
-"""The grasp closure's 1-sigma for where the object sits on the palm, which the twin always centres: a
-70 mm, 16 kPa sphere placed 3 mm off the palm's centre towards F1 or F2 (the hand frame's x) closed 0.14
-and 0.23 thousand counts further (0.03 for 3 mm towards or away from the thumb, y), so 0.1 stands for
-about 1.5 mm of placement."""
+MAX_LOST_FRACTION = 0.1
+"""A fingertip holding nothing in over 10 % of the compression has lost the object."""
 BASELINE_S = 0.3
 """Without a free-motion run, the gauge offset is the mean torque over the run's first 0.3 s (open hand)."""
 
@@ -90,12 +84,13 @@ class Identification:
     model: str
     hand: HandDynamics
     fingers: list[FingerResult]
-    material: dict | None
     notes: list[str] = field(default_factory=list)
     grip: tuple[float, float] = (float("nan"), float("nan"))
     """The grip's stiffness through the hand's own sensors and its 1-sigma (grip_stiffness)."""
-    closure: tuple[float, float] = (float("nan"), float("nan"))
-    """The grasp closure in 1000 counts and its 1-sigma (grasp_closure)."""
+    squeeze: tuple[float, float] = (float("nan"), float("nan"))
+    """The squeeze stiffness (N/m) over the run's whole cycles and its 1-sigma (squeeze_stiffness)."""
+    material: dict | None = None
+    """The modulus and its interval (twin.sim.modulus.ModulusEstimate.to_json), where one was inferred."""
 
     def to_json(self) -> dict:
         """The results file's content."""
@@ -106,15 +101,18 @@ class Identification:
             "fingers": [f.to_json() for f in self.fingers],
             "grip_stiffness_nm_per_kcount": self.grip[0],
             "grip_stiffness_sigma_nm_per_kcount": self.grip[1],
-            "grasp_closure_kcounts": self.closure[0],
-            "grasp_closure_sigma_kcounts": self.closure[1],
+            "squeeze_stiffness_n_m": self.squeeze[0],
+            "squeeze_stiffness_sigma_n_m": self.squeeze[1],
             "material": self.material,
             "notes": self.notes,
         }
 
 
-def compression_window(signals: FingerSignals) -> tuple[NDArray[np.bool_], int]:
-    """Samples of whole compression cycles after the grasp settled, and how many cycles."""
+def compression_window(
+    signals: FingerSignals, max_cycles: int | None = None
+) -> tuple[NDArray[np.bool_], int]:
+    """Samples of whole compression cycles after the grasp settled (the first `max_cycles` of them, if
+    given), and how many cycles."""
     compress = signals.phase_mask("compress")
     if not compress.any():
         raise IdentificationError(
@@ -126,6 +124,8 @@ def compression_window(signals: FingerSignals) -> tuple[NDArray[np.bool_], int]:
     profile = signals.metadata.get("experiment", {}).get("profile", {})
     period = 1.0 / profile["frequency_hz"] if profile.get("frequency_hz") else DEFAULT_PERIOD_S
     cycles = int((t_end - t0) // period)
+    if max_cycles is not None:
+        cycles = min(cycles, max_cycles)
     if cycles < 1:
         raise IdentificationError(
             f"{signals.run_path}: {t_end - t0:.1f} s of compression; identification needs one whole cycle "
@@ -153,26 +153,6 @@ def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: in
     per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
     sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
     return slope(np.flatnonzero(window)), sigma
-
-
-def grasp_closure(signals: FingerSignals, window: NDArray[np.bool_], cycles: int) -> tuple[float, float]:
-    """How far the hand closes to hold the object at the grasp torque: the three fingers' summed drive
-    counts over whole cycles, less the compression's commanded mean (3 x its offset: the sine averages
-    out over whole cycles), in 1000 counts; with a 1-sigma from the cycles' spread and the object's
-    placement (CLOSURE_PLACEMENT_SIGMA_KCOUNTS). NaN where the run does not record its offset.
-
-    The balance holds every finger at the procedure's grasp torque, so this is the indentation that
-    torque makes, measured from the object's undeformed size rather than from a detected first
-    contact; it falls steadily with E where the stiffnesses change regime (fingers folding over a
-    soft sphere). Less the offset, it does not move with the compression profile."""
-    profile = signals.metadata.get("experiment", {}).get("profile", {})
-    offset = profile.get("offset_counts")
-    if offset is None:
-        return math.nan, math.nan
-    drive = (signals.drive_counts.sum(axis=1) - 3 * float(offset)) / 1e3
-    per_cycle = np.array([drive[i].mean() for i in np.array_split(np.flatnonzero(window), cycles)])
-    spread = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else 0.0
-    return float(drive[window].mean()), math.hypot(spread, CLOSURE_PLACEMENT_SIGMA_KCOUNTS)
 
 
 def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
@@ -209,21 +189,12 @@ def identify_run(
     run: Path | str,
     free_run: Path | str | None = None,
     model: str = "kelvin-voigt",
-    material_map: MaterialMap | None = None,
-    *,
-    shape: str | None = None,
-    size_m: tuple[float, float, float] | None = None,
 ) -> Identification:
-    """Identify eq. 4 and the modulus from a compress run (and optionally a free-motion run).
-
-    `shape` and `size_m` describe the object where the run does not (a hardware run)."""
+    """Identify eq. 4 per finger from a compress run (and optionally a free-motion run); the modulus is
+    twin.sim.modulus's, which runs the procedure in the twin."""
     for path in (run, free_run) if free_run is not None else (run,):  # metadata types: one line if not
         check_run_metadata(open_run(path).info, Path(path) / "run.json")
     signals = load_signals(run)
-    if shape is not None and size_m is not None:
-        signals.metadata = signals.metadata | {
-            "object": (signals.metadata.get("object") or {}) | {"shape": shape, "size_m": list(size_m)}
-        }
     notes: list[str] = []
     if free_run is not None:
         hand = identify_hand(load_signals(free_run, need_tactile=False))
@@ -269,65 +240,60 @@ def identify_run(
             )
         )
     grip = grip_stiffness(signals, window, cycles)
-    closure = grasp_closure(signals, window, cycles)
-    if not math.isfinite(closure[0]):
-        notes.append("the run does not record its compression offset: the grasp closure is left out")
-    features = material_features(fingers, grip, closure)
-    material = _material(signals, features, material_map, notes)
-    return Identification(signals.run_path, model, hand, fingers, material, notes, grip, closure)
+    squeeze = squeeze_stiffness(signals)
+    return Identification(signals.run_path, model, hand, fingers, notes, grip, squeeze[:2])
 
 
-def material_features(
-    fingers: list[FingerResult], grip: tuple[float, float], closure: tuple[float, float]
-) -> dict[str, tuple[float, float]]:
-    """The values the material mapping reads (twin.identify.material.FEATURES), each with its own
-    1-sigma."""
-    thumb = fingers[THUMB]
-    kv = (
-        thumb.fit
-        if thumb.fit.model == "kelvin-voigt"
-        else fit_kelvin_voigt(thumb.delta_m, thumb.rate_m_s, thumb.reaction_tactile_n)
-    )
-    return {
-        "thumb_secant_n_m": (thumb.secant_n_m, thumb.secant_sigma_n_m),
-        "thumb_tangent_n_m": (kv.params["k_n_m"], kv.sigma["k_n_m"]),
-        "grip_nm_per_kcount": grip,
-        "grasp_closure_kcounts": closure,
-    }
+def squeeze_stiffness(signals: FingerSignals, max_cycles: int | None = None) -> tuple[float, float, int]:
+    """The grasp's squeeze stiffness (N/m): the slope of the fingertips' summed reaction (tactile R,
+    eq. 6) against their summed travel into the object (each along its pad normal) over whole
+    cycles; its 1-sigma from the spread of the cycles' own slopes; the cycles used.
 
-
-def _material(
-    signals: FingerSignals,
-    features: dict[str, tuple[float, float]],
-    material_map: MaterialMap | None,
-    notes: list[str],
-) -> dict | None:
-    obj = signals.metadata.get("object") or {}
-    experiment_object = signals.metadata.get("experiment", {}).get("object")
-    if not obj.get("shape") or not obj.get("size_m"):
-        notes.append(
-            f"the run does not record the object's shape and size (object: {experiment_object}); "
-            "no modulus estimate"
+    A slope needs no contact point: a secant R / delta does, and first contact falls between two
+    30 Hz samples (4 mm of fingertip travel at the close's speed), which moved single secants by 40 %.
+    Sums, because the object shifts between the fingers as they squeeze: one fingertip may even back
+    off while the others push, but the squeeze is the total (docs/identification.md). Fingertips that
+    never touch the object in the window are left out. IdentificationError when the pads held nothing
+    in over MAX_LOST_FRACTION of the compression: the object slipped out of the grasp."""
+    if signals.reaction_n is None:
+        raise IdentificationError(f"{signals.run_path}: no tactile reaction; the squeeze stiffness needs it")
+    window, cycles = compression_window(signals, max_cycles)
+    reaction = signals.reaction_n[window]
+    lost = float(np.mean(reaction.sum(axis=1) < CONTACT_FORCE_N))
+    if lost > MAX_LOST_FRACTION:
+        raise IdentificationError(
+            f"{signals.run_path}: the fingertips held nothing (under {CONTACT_FORCE_N} N together) in "
+            f"{100 * lost:.0f} % of the compression: the object slipped out of the grasp or was never held, "
+            "so its stiffness cannot be read"
         )
-        return None
-    try:
-        mapping = material_map or MaterialMap.load()
-        estimate = mapping.estimate(obj["shape"], max(obj["size_m"]), features)
-    except MappingError as exc:
-        notes.append(f"no modulus estimate: {exc}")
-        return None
-    out = estimate.to_json()
-    if signals.metadata.get("backend") != "sim" and math.isfinite(features["grasp_closure_kcounts"][0]):
-        notes.append(
-            "the grasp closure takes the object as resting on the palm's centre, at the size given, with "
-            "the hand homed (3 mm off-centre moves it as much as a 5-9 % softer foam): "
-            "docs/identification.md"
+    first = int(np.flatnonzero(window)[0])
+    touching = (reaction > CONTACT_FORCE_N).any(axis=0)
+    travel = np.column_stack(
+        [
+            (signals.tip_position_m[:, k] - signals.tip_position_m[first, k]) @ signals.tip_normal[first, k]
+            for k in range(3)
+        ]
+    )[:, touching].sum(axis=1)
+    force = signals.reaction_n[:, touching].sum(axis=1)
+
+    def slope(idx: NDArray[np.int64]) -> float:
+        d = travel[idx] - travel[idx].mean()
+        return float(d @ (force[idx] - force[idx].mean()) / (d @ d)) if d @ d > 0 else float("nan")
+
+    total = slope(np.flatnonzero(window))
+    if not total > 0:
+        raise IdentificationError(
+            f"{signals.run_path}: the fingertips' force did not rise as they pressed into the object "
+            "through the compression: no squeeze stiffness"
         )
-    if signals.metadata.get("backend") == "sim" and obj.get("young_pa"):
-        out["twin_young_pa"] = obj["young_pa"]  # the twin knows its material: report the error
-        out["error"] = estimate.young_pa / obj["young_pa"] - 1.0
-    if estimate.extrapolated:
-        notes.append(
-            "the modulus is extrapolated: no stiffness it rests on lies inside the mapping's valid range"
-        )
-    return out
+    per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    return total, sigma, cycles
+
+
+def fingertip_contact(signals: FingerSignals, max_cycles: int | None = None) -> NDArray[np.float64]:
+    """(3,) the fraction of the compared compression in which each fingertip pad touched the object:
+    which fingers hold it with their tips is the grasp's configuration, and a twin that grasps the
+    object otherwise is not measuring the same stiffness."""
+    window, _ = compression_window(signals, max_cycles)
+    return np.mean(signals.reaction_n[window] > CONTACT_FORCE_N, axis=0)

@@ -9,7 +9,7 @@ where the finger first touched (twin.identify.signals); delta_dot its rate (m/s)
   nonlinear spring of foams that stiffen as they are crushed, with damping that vanishes at contact.
 
 Uncertainties are 1-sigma from the least-squares covariance, s^2 (J^T J)^-1, with s^2 the residual
-variance; they describe the fit, not the mapping to a modulus (twin.identify.material).
+variance; they describe the fit; the modulus is inferred by twin.sim.modulus.
 """
 
 from __future__ import annotations

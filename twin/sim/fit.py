@@ -9,8 +9,8 @@ trust-region least squares polishes all parameters together. Every batch of cand
 stage, a finite-difference Jacobian) is replayed in parallel processes: the clutch runs in Python
 between steps, so mujoco.rollout's native threads cannot run this model.
 
-The modulus starts from `twin identify`'s estimate (or a scan of its whole range); the other
-parameters start at the run's own description of the object, which on hardware is the researcher's.
+The modulus starts from `twin identify`'s estimate (twin.sim.modulus) or a scan of its whole range; the
+other parameters start at the run's own description of the object, which on hardware is the researcher's.
 Identifiability is judged by replaying, not by the formal covariance (the residuals are not white:
 first-contact timing and stick-slip make them so). Each other parameter is moved 25 % either way and
 the modulus allowed to follow (a profile): unless the residual RMS then rises by
@@ -60,8 +60,10 @@ PROFILE_SPAN = math.log(1.15)
 """How far the modulus may follow a probed parameter: a 25 % Poisson move shifts it ~8 %."""
 PROBE = 0.25
 """Relative move of each fitted parameter in the identifiability probe."""
-IDENTIFIABLE_RMS_RISE = 0.05
-"""A 25 % move must raise the residual RMS by 5 % for the parameter to count as identified."""
+IDENTIFIABLE_RMS_RISE = 0.10
+"""A 25 % move must raise the residual RMS by 10 % for the parameter to count as identified: the
+elasticity damping shows only in the touch and raised it by 5-8 %, and fitted from there it wandered
+to 4x the truth; the Poisson ratio raises it by ~30 %."""
 START = {"young_pa": 4e4}
 """The modulus' first guess when neither `--young` nor `twin identify` gives one (then it is scanned over
 its whole range anyway). Never the run's recorded modulus: on a sim run that is the truth under test."""
@@ -73,15 +75,14 @@ class FitError(ConfigError):
     """The run cannot be fitted (not a sim-describable run, no commands, nothing to fit)."""
 
 
-def _identified_young_pa(path: Path) -> float | None:
-    """E from `twin identify` (eq. 4 and the material mapping), or None where it cannot say."""
-    from twin.identify.identify import identify_run
+def _identified_young_pa(path: Path, foam: FoamParams | None, workers: int) -> float | None:
+    """E from `twin identify`'s engine (twin.sim.modulus), or None where it cannot say."""
+    from twin.sim.modulus import EstimateError, estimate_modulus
 
     try:
-        material = identify_run(path).material
-    except (ValueError, KeyError):  # no tactile, no compress phase, nothing to identify: scan instead
+        return estimate_modulus(path, description=foam, workers=workers).young_pa
+    except (EstimateError, ValueError, KeyError):  # no pads, no compression, not a foam: scan instead
         return None
-    return None if material is None or material["extrapolated"] else float(material["young_pa"])
 
 
 def foam_of_run(run: Run) -> FoamParams:
@@ -286,8 +287,8 @@ def fit_run(
     if "young_pa" in names:
         start_from = "given" if "young_pa" in (initial or {}) else "scan"
         start["young_pa"] = (initial or {}).get("young_pa", START["young_pa"])
-        if start_from == "scan":  # twin identify's estimate, when the mapping covers the object
-            identified = _identified_young_pa(run.path)
+        if start_from == "scan":  # twin identify's estimate, where it has one
+            identified = _identified_young_pa(run.path, foam, workers)
             if identified is not None:
                 start["young_pa"], start_from = identified, "identify"
     truth = dict(described) if run.metadata.get("backend") == "sim" else {}

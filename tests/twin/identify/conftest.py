@@ -1,19 +1,25 @@
 """Twin runs shared by the identification tests (made once per session, in a temporary directory)."""
 
+import contextlib
+import io
+import json
+
 import pytest
 
 from experiments.compress import run_compress
 from experiments.free_motion import run_free_motion
+from twin.cli import main
 from twin.sim.backend import SimBackend
 from twin.sim.foam import get_object
 
 SPHERE_YOUNG_PA = 57_300.0
-"""Off the mapping's grid (nearest grid moduli 49.4 and 58.3 kPa): a modulus it has not seen."""
+"""Neither the library sphere's 80 kPa nor the modulus engine's 40 kPa reference simulation: a modulus
+the identification is not started at."""
 
 
 @pytest.fixture(scope="session")
 def sphere_run(tmp_path_factory):
-    """14 s compress of the library sphere at an unseen modulus, sensor noise on, an unused noise seed."""
+    """14 s compress of the library sphere at SPHERE_YOUNG_PA, sensor noise on, its own noise seed."""
     foam = get_object("sphere").with_overrides(young_pa=SPHERE_YOUNG_PA)
     path = tmp_path_factory.mktemp("identify") / "sphere"
     run_compress(SimBackend(foam, seed=42), path, duration_s=14.0, object_name=foam.name)
@@ -34,3 +40,16 @@ def no_tactile_run(tmp_path_factory):
     path = tmp_path_factory.mktemp("identify") / "no-tactile"
     run_compress(SimBackend(get_object("sphere"), tactile=False), path, duration_s=4.0, object_name="sphere")
     return path
+
+
+@pytest.fixture(scope="session")
+def sphere_identified(sphere_run, free_run, tmp_path_factory):
+    """`twin identify SPHERE --free FREE --json --no-progress` once per session (eq. 4 and the modulus,
+    ~15 s): its exit code, the results file it printed, and the folder it wrote."""
+    out = tmp_path_factory.mktemp("identify") / "sphere-identify"
+    argv = ["identify", str(sphere_run), "--free", str(free_run), "--json", "--no-progress"]
+    argv += ["--out", str(out)]
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(argv)
+    return code, json.loads(printed.getvalue()) if code == 0 else None, out

@@ -1,0 +1,338 @@
+"""The foam's Young's modulus from any compress run, with a 95 % interval: simulation-based inference.
+
+One method for every object the twin can hold (block, cylinder, sphere, any closed mesh, any size),
+with nothing tuned per shape or size: the twin's mechanics carry the geometry.
+1. The run's squeeze stiffness S is measured (twin.identify.identify.squeeze_stiffness: the slope of
+   the fingertips' summed force on their summed travel into the object over the first CYCLES
+   compression cycles). It is the foam's: an object 3 mm off the palm's centre moves load between
+   the fingers by up to 40 % but S by a few per cent (docs/identification.md).
+2. The run's procedure (its recorded compress profile) is run again in the twin, closed loop as the
+   hand ran it, with the described object at candidate moduli; each simulated run goes through
+   exactly the same code as the real one. S grows with E nearly as a power (S ~ E^0.7-1.0): a first
+   simulation at a reference modulus gives a first estimate, five around it (a factor of 4) the power
+   law, which is inverted (log-log); a second round where the estimate left the bracket.
+3. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
+   cycles); the procedure's scatter about the power law (the run's S is one more draw of it); and
+   what the run cannot tell apart, each moved to both ends of its tolerance at the estimate and read
+   through the power law as a uniform error of the larger shift: the object's placement on the palm
+   (x and y), its size (a primitive's extents; not a mesh's), and its Poisson ratio within the range
+   of flexible polyurethane foams.
+4. A posterior check: the twin over those tolerances must grasp the object as the hand did (which
+   fingertips touch, for how long), or their stiffnesses are not comparable.
+
+A run the method cannot stand behind ends in EstimateError, one line: no compression, an object that
+slipped out of the grasp, an estimate outside the foams' range, a twin that cannot grasp the object.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from twin.identify.identify import fingertip_contact, squeeze_stiffness
+from twin.identify.reaction import IdentificationError
+from twin.identify.signals import MissingStreamError, load_signals
+from twin.interface.errors import ConfigError, SimulationUnstableError
+from twin.processes import worker_pool
+from twin.recording.reader import Run
+from twin.sim.fit import FitError, foam_of_run
+from twin.sim.foam import FoamParams
+from twin.validation import check_run_metadata
+
+if TYPE_CHECKING:
+    from experiments.compress import CompressProfile
+
+RANGE_PA = (5e3, 5e5)
+"""Moduli the method answers for: flexible polyurethane foams (soft ~10 kPa to firm ~300 kPa) and a
+margin; an estimate outside means the object is not such a foam (or the run is not what it says)."""
+REFERENCE_PA = 4e4
+"""The first simulation's modulus: a medium foam (twin.sim.foam's library)."""
+BRACKET = (0.5, 0.7, 1.0, 1.4, 2.0)
+"""Moduli simulated around an estimate, as factors: the power law S ~ E^p is fitted to these, and their
+scatter about it is the procedure's own (a factor of 4 smooths over the grasp's jitter in S(E))."""
+CYCLES = 3
+"""Compression cycles compared: enough to average the gauges' noise, few enough to be quick."""
+TAIL_S = 2.5
+"""Simulated time after the run's own compression window: a twin grasp that settles up to 2 s later
+(the balance ends between 1.5 and 5 s) still delivers every compared cycle."""
+SIM_SEED = 7
+"""The twin's sensor noise in every simulation: one seed for all, so S(E) is smooth."""
+PLACEMENT_TOLERANCE_M = 0.003
+"""An object placed by hand sits within 3 mm of the palm's centre, either axis."""
+SIZE_TOLERANCE_M = 0.001
+"""A described size is within 1 mm of the object's, every extent (calipers on soft foam)."""
+CONTACT_TOLERANCE = 0.2
+"""How far a fingertip's contact fraction may lie outside the twin's range (posterior check)."""
+POISSON_RANGE = (0.2, 0.35)
+"""Flexible polyurethane foams (twin.sim.foam's library docstring); the simulations take the middle."""
+
+
+class EstimateError(FitError):
+    """The run gives no modulus the method can stand behind (one line says why)."""
+
+
+@dataclass
+class ModulusEstimate:
+    """The modulus, its 95 % interval and where the interval's width comes from."""
+
+    run_path: Path
+    young_pa: float
+    ci95_pa: tuple[float, float]
+    sigma_log: dict[str, float]
+    """1-sigma of log E from each source (noise, scatter, placement_x, placement_y, size, poisson) and in
+    total."""
+    stiffness_n_m: float
+    """The run's squeeze stiffness S."""
+    power: float
+    """The local power law's exponent, d log S / d log E."""
+    object: dict
+    """The description simulated (shape, size, mesh) and the tolerances assumed."""
+    simulations: list[tuple[float, float]]
+    """(E in Pa, S in N/m) of every simulation at the description."""
+    wall_s: float
+    cycles: int
+    twin_young_pa: float | None = None
+
+    def to_json(self) -> dict:
+        """The `material` part of the results file."""
+        out = {
+            "method": "simulation-based inference: the run's procedure in the twin (twin.sim.modulus)",
+            "young_pa": self.young_pa,
+            "ci95_pa": list(self.ci95_pa),
+            "sigma_log": self.sigma_log,
+            "squeeze_stiffness_n_m": self.stiffness_n_m,
+            "power": self.power,
+            "object": self.object,
+            "simulations": [list(p) for p in self.simulations],
+            "cycles": self.cycles,
+            "wall_s": self.wall_s,
+        }
+        if self.twin_young_pa is not None:
+            out["twin_young_pa"] = self.twin_young_pa
+            out["error"] = self.young_pa / self.twin_young_pa - 1.0
+            out["covered"] = bool(self.ci95_pa[0] <= self.twin_young_pa <= self.ci95_pa[1])
+        return out
+
+
+def describe(foam: FoamParams) -> FoamParams:
+    """What a lab knows of its object, for the twin: shape and size (or mesh); the rest nominal."""
+    return replace(
+        foam,
+        name=foam.name or "object",
+        young_pa=REFERENCE_PA,
+        poisson=sum(POISSON_RANGE) / 2,
+        damping=0.002,
+        density_kg_m3=30.0,
+        friction=0.8,
+        placement_m=(0.0, 0.0),
+        fidelity="fast",
+        resolution=None,
+        dof=None,
+    )
+
+
+def run_stiffness(path: Path, cycles: int = CYCLES) -> tuple[float, float, int, np.ndarray]:
+    """S, its 1-sigma, the cycles used and each fingertip's contact fraction, of a recorded run;
+    EstimateError (one line) where it has none."""
+    try:
+        signals = load_signals(path)
+        s, sigma, used = squeeze_stiffness(signals, cycles)
+        return s, sigma, used, fingertip_contact(signals, used)
+    except (IdentificationError, MissingStreamError) as exc:
+        raise EstimateError(str(exc)) from None
+
+
+# --- worker side: each process keeps the run's procedure -------------------------------------
+_PROCEDURE: dict = {}
+
+
+def _init_worker(profile: CompressProfile, duration_s: float, cycles: int) -> None:
+    _PROCEDURE.update(profile=profile, duration_s=duration_s, cycles=cycles)
+
+
+def _simulate(foam: FoamParams) -> tuple[float, np.ndarray]:
+    """S and the fingertips' contact fractions of the run's procedure on a twin holding `foam` (a
+    temporary run, removed after)."""
+    from experiments.compress import run_compress
+    from twin.sim.backend import SimBackend
+
+    scratch = Path(tempfile.mkdtemp(prefix="twin-modulus-"))
+    try:
+        run_compress(
+            SimBackend(foam, seed=SIM_SEED),
+            scratch / "run",
+            duration_s=_PROCEDURE["duration_s"],
+            object_name=foam.name,
+            profile=_PROCEDURE["profile"],
+        )
+        s, _, _, contact = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
+        return s, contact
+    except EstimateError as exc:
+        raise EstimateError(
+            f"the twin holding the described object at E = {foam.young_pa / 1e3:.3g} kPa: {exc}"
+        ) from None
+    except SimulationUnstableError as exc:
+        raise EstimateError(f"simulating E = {foam.young_pa / 1e3:.3g} kPa: {exc}") from None
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _profile(run: Run) -> CompressProfile:
+    from experiments.compress import CompressProfile
+
+    experiment = run.metadata.get("experiment") or {}
+    given = experiment.get("profile")
+    if experiment.get("name") != "compress" or not isinstance(given, dict):
+        raise EstimateError(f"{run.path}: not a `twin run compress` run; the modulus comes from one")
+    try:
+        return CompressProfile(**given)
+    except (TypeError, ConfigError) as exc:
+        raise EstimateError(f"{run.path}: the run's compress profile is unreadable ({exc})") from None
+
+
+def _window_end_s(run: Run, profile: CompressProfile, cycles: int) -> float:
+    """Run time at which the run's first `cycles` compared cycles end."""
+    phases = tuple(run.metadata.get("phases", ()))
+    cmd = run.stream("command")
+    compress = cmd["phase"] == phases.index("compress") if "compress" in phases else np.zeros(0, bool)
+    if not compress.any():
+        raise EstimateError(f"{run.path}: no compression phase recorded; the modulus comes from one")
+    from twin.identify.identify import WINDOW_SETTLE_S
+
+    return float(cmd.t_s[compress][0]) + WINDOW_SETTLE_S + cycles / profile.frequency_hz
+
+
+def estimate_modulus(
+    run_path: Path | str,
+    *,
+    description: FoamParams | None = None,
+    workers: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> ModulusEstimate:
+    """E and its 95 % interval from a compress run (module docstring).
+
+    `description`: the object (shape, size or mesh); default the run's own record of it, of which only
+    the geometry is used. `progress(done, planned)` after every batch of simulations."""
+    started = time.perf_counter()
+    run = Run(run_path)
+    check_run_metadata(run.info, run.path / "run.json")
+    profile = _profile(run)
+    measured, measured_sigma, cycles, contact = run_stiffness(run.path)
+    base = describe(description if description is not None else foam_of_run(run))
+    duration_s = _window_end_s(run, profile, cycles) + TAIL_S
+    truth = (
+        (run.metadata.get("object") or {}).get("young_pa") if run.metadata.get("backend") == "sim" else None
+    )
+    sims: dict[tuple, tuple[float, np.ndarray]] = {}
+    planned = 1 + 2 * len(BRACKET) + 8
+
+    with worker_pool(workers, initializer=_init_worker, initargs=(profile, duration_s, cycles)) as pool:
+
+        def evaluate(foams: list[FoamParams]) -> list[float]:
+            return [sims[k][0] for k in _run(foams)]
+
+        def _run(foams: list[FoamParams]) -> list[tuple]:
+            key = lambda f: (f.young_pa, f.poisson, f.size_m, f.placement_m, f.mesh_scale_m)  # noqa: E731
+            todo = {key(f): f for f in foams if key(f) not in sims}
+            for k, s in zip(todo, pool.map(_simulate, list(todo.values())), strict=True):
+                sims[k] = s
+            if progress is not None:
+                progress(len(sims), max(planned, len(sims)))
+            return [key(f) for f in foams]
+
+        def at(young_pa: float, **changes: object) -> FoamParams:
+            return replace(base, young_pa=float(np.clip(young_pa, *RANGE_PA)), **changes)
+
+        (s_ref,) = evaluate([at(REFERENCE_PA)])
+        estimate = REFERENCE_PA * measured / s_ref  # S ~ E to first order
+        for _ in range(2):
+            bracket = [at(estimate * f) for f in BRACKET]
+            s = np.log(evaluate(bracket))
+            log_e = np.log([f.young_pa for f in bracket])
+            (power, intercept), residual, *_ = np.polyfit(log_e, s, 1, full=True)
+            # The procedure's own scatter: the grasp settles a little differently at every modulus, so
+            # the simulations scatter about the power law, and the run's S is one more such draw.
+            scatter = math.sqrt(float(residual[0]) / (len(s) - 2)) if len(residual) else 0.0
+            if not power > 0.2:
+                raise EstimateError(
+                    f"{run.path}: the twin's squeeze stiffness does not grow with E near "
+                    f"{estimate / 1e3:.3g} kPa (power {power:.2f}): the described object is not squeezed "
+                    "the way this run's was"
+                )
+            estimate = math.exp((math.log(measured) - intercept) / power)
+            if bracket[0].young_pa <= estimate <= bracket[-1].young_pa:
+                break
+        if not RANGE_PA[0] <= estimate <= RANGE_PA[1]:
+            raise EstimateError(
+                f"{run.path}: the squeeze stiffness ({measured:.0f} N/m) puts E at {estimate / 1e3:.3g} "
+                f"kPa, outside the {RANGE_PA[0] / 1e3:.0f}-{RANGE_PA[1] / 1e3:.0f} kPa of foams the method "
+                "answers for"
+            )
+        # What the run cannot tell apart, at both ends of its tolerance, read through the power law.
+        nuisances = {
+            "placement_x": [at(estimate, placement_m=(s * PLACEMENT_TOLERANCE_M, 0.0)) for s in (1, -1)],
+            "placement_y": [at(estimate, placement_m=(0.0, s * PLACEMENT_TOLERANCE_M)) for s in (1, -1)],
+            "poisson": [at(estimate, poisson=p) for p in POISSON_RANGE],
+        }
+        if base.shape != "mesh":  # a mesh is its scan: its size is the file's
+            nuisances["size"] = [
+                at(estimate, size_m=tuple(e + s * SIZE_TOLERANCE_M for e in base.size_m)) for s in (1, -1)
+            ]
+        centre = math.log(evaluate([at(estimate)])[0])
+        shifted = evaluate([f for fs in nuisances.values() for f in fs])
+        twin_contact = np.array(
+            [sims[k][1] for k in _run([at(estimate)] + [f for fs in nuisances.values() for f in fs])]
+        )
+    # A posterior check: the twin, with the object anywhere within the tolerances, must grasp it as the
+    # run did (which fingertips touch, and for how long); otherwise it measures another stiffness.
+    low, high = twin_contact.min(axis=0) - CONTACT_TOLERANCE, twin_contact.max(axis=0) + CONTACT_TOLERANCE
+    odd = np.flatnonzero((contact < low) | (contact > high))
+    if odd.size:
+        k = int(odd[0])
+        raise EstimateError(
+            f"{run.path}: F{k + 1}'s fingertip touched the object in {100 * contact[k]:.0f} % of the "
+            f"compression, the twin's in {100 * twin_contact[:, k].min():.0f}-"
+            f"{100 * twin_contact[:, k].max():.0f} %: the twin grasps the described object otherwise than "
+            "the hand did, so their stiffnesses are not comparable"
+        )
+    sigma = {
+        "noise": measured_sigma / measured / power if math.isfinite(measured_sigma) else 0.0,
+        "scatter": scatter / power,
+    }
+    for i, name in enumerate(nuisances):
+        shifts = [abs(math.log(v) - centre) / power for v in shifted[2 * i : 2 * i + 2]]
+        sigma[name] = max(shifts) / math.sqrt(3.0)  # uniform within the tolerance
+    sigma["total"] = math.sqrt(sum(v**2 for v in sigma.values()))
+    half = 1.959964 * sigma["total"]
+    return ModulusEstimate(
+        run_path=run.path,
+        young_pa=estimate,
+        ci95_pa=(estimate * math.exp(-half), estimate * math.exp(half)),
+        sigma_log=sigma,
+        stiffness_n_m=measured,
+        power=float(power),
+        object={
+            "shape": base.shape,
+            "size_m": list(base.size_m),
+            "mesh_file": base.mesh_file,
+            "poisson_range": list(POISSON_RANGE),
+            "placement_tolerance_m": PLACEMENT_TOLERANCE_M,
+            "size_tolerance_m": 0.0 if base.shape == "mesh" else SIZE_TOLERANCE_M,
+        },
+        simulations=sorted(
+            (k[0], v[0])
+            for k, v in sims.items()
+            if k[1:] == (base.poisson, base.size_m, (0.0, 0.0), base.mesh_scale_m)
+        ),
+        wall_s=time.perf_counter() - started,
+        cycles=cycles,
+        twin_young_pa=float(truth) if truth else None,
+    )

@@ -104,6 +104,16 @@ def _add_foam_overrides(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_mesh_scale(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--mesh-scale",
+        type=finite(1e-6, 1, min_inclusive=True),
+        default=0.001,
+        metavar="M",
+        help="metres per --object-mesh unit (default 0.001: the file is in millimetres)",
+    )
+
+
 def _add_run_options(p: argparse.ArgumentParser, duration_s: float) -> None:
     """What every `twin run` experiment takes: backend, hand, rig, duration, seed, output, progress."""
     p.add_argument("--backend", choices=("sim", "hardware"), default="sim")
@@ -141,13 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="a foam of any closed shape: an .stl/.obj surface (e.g. a scan), with --object's material",
     )
-    c.add_argument(
-        "--mesh-scale",
-        type=finite(1e-6, 1, min_inclusive=True),
-        default=0.001,
-        metavar="M",
-        help="metres per --object-mesh unit (default 0.001: the file is in millimetres)",
-    )
+    _add_mesh_scale(c)
     _add_run_options(c, duration_s=10.0)
     c.add_argument(
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
@@ -201,13 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--object-mesh", type=existing_file(), metavar="FILE", help="the object as a closed .stl/.obj surface"
     )
-    p.add_argument(
-        "--mesh-scale",
-        type=finite(1e-6, 1, min_inclusive=True),
-        default=0.001,
-        metavar="M",
-        help="metres per --object-mesh unit (default 0.001: millimetres)",
-    )
+    _add_mesh_scale(p)
     p.add_argument("--workers", type=WORKERS, default=2, help="simulations in parallel (processes)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

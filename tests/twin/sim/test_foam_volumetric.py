@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import meshio
 import numpy as np
 import pytest
 
@@ -13,40 +12,14 @@ from benchmarks.foam_fidelity import simulate
 from twin.cli import main
 from twin.interface.errors import ConfigError
 from twin.recording.reader import open_run
+from twin.sim.example_shapes import write_closed_surface
 from twin.sim.foam import LIBRARY, mesh_object
 from twin.sim.scene import build_model, foam_mesh
 
 
 def _bumpy_sphere_stl(path: Path, radius_mm: float = 30.0, bump: float = 0.08) -> Path:
-    """A closed UV-sphere surface with bumps (millimetres), written as binary STL."""
-    n_t, n_p = 20, 40
-    theta = np.linspace(0, np.pi, n_t)[1:-1]
-    phi = np.linspace(0, 2 * np.pi, n_p, endpoint=False)
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    r = radius_mm * (1 + bump * np.sin(3 * t) * np.cos(4 * p))
-    points = np.c_[
-        (r * np.sin(t) * np.cos(p)).ravel(), (r * np.sin(t) * np.sin(p)).ravel(), (r * np.cos(t)).ravel()
-    ]
-    points = np.vstack([points, [0, 0, radius_mm], [0, 0, -radius_mm]])
-    top, bottom = len(points) - 2, len(points) - 1
-
-    def at(i: int, j: int) -> int:
-        return i * n_p + j % n_p
-
-    triangles = []
-    for i in range(len(theta) - 1):
-        for j in range(n_p):
-            triangles += [
-                [at(i, j), at(i + 1, j), at(i, j + 1)],
-                [at(i, j + 1), at(i + 1, j), at(i + 1, j + 1)],
-            ]
-    for j in range(n_p):
-        triangles += [
-            [top, at(0, j), at(0, j + 1)],
-            [bottom, at(len(theta) - 1, j + 1), at(len(theta) - 1, j)],
-        ]
-    meshio.write(path, meshio.Mesh(points, [("triangle", np.array(triangles))]), binary=True)
-    return path
+    """A closed bumpy sphere (millimetres), written as binary STL."""
+    return write_closed_surface(path, (radius_mm,) * 3, bump=bump)
 
 
 def test_the_faithful_foam_is_a_volumetric_mesh_with_interior_vertices():

@@ -26,7 +26,7 @@ SECTIONS = (
     "stereo_pipeline",
     "stereo_run",
     "identification",
-    "identification_unseen",
+    "identify_speed",
     "shape_network",
     "sweep_throughput",
     "run_overhead",

@@ -175,9 +175,11 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray]:
         )
         s, _, _, contact = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
         return s, contact
-    except EstimateError as exc:
+    except EstimateError as exc:  # the scratch run's path means nothing to the user: say what failed
+        reason = str(exc).removeprefix(f"{scratch / 'run'}: ")
         raise EstimateError(
-            f"the twin holding the described object at E = {foam.young_pa / 1e3:.3g} kPa: {exc}"
+            f"the twin's own grasp of the described object at E = {foam.young_pa / 1e3:.3g} kPa fails: "
+            f"{reason}"
         ) from None
     except SimulationUnstableError as exc:
         raise EstimateError(f"simulating E = {foam.young_pa / 1e3:.3g} kPa: {exc}") from None

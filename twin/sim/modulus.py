@@ -69,6 +69,8 @@ PLACEMENT_TOLERANCE_M = 0.003
 """An object placed by hand sits within 3 mm of the palm's centre, either axis."""
 SIZE_TOLERANCE_M = 0.001
 """A described size is within 1 mm of the object's, every extent (calipers on soft foam)."""
+MIN_POINTS = 3
+"""Moduli of a bracket the twin must grasp for a power law to be fitted (of BRACKET's five)."""
 CONTACT_TOLERANCE = 0.2
 """How far a fingertip's contact fraction may lie outside the twin's range (posterior check)."""
 POISSON_RANGE = (0.2, 0.35)
@@ -158,9 +160,10 @@ def _init_worker(profile: CompressProfile, duration_s: float, cycles: int) -> No
     _PROCEDURE.update(profile=profile, duration_s=duration_s, cycles=cycles)
 
 
-def _simulate(foam: FoamParams) -> tuple[float, np.ndarray]:
-    """S and the fingertips' contact fractions of the run's procedure on a twin holding `foam` (a
-    temporary run, removed after)."""
+def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, str]:
+    """S, the fingertips' contact fractions and "" of the run's procedure on a twin holding `foam` (a
+    temporary run, removed after); NaNs and the reason where the twin's own grasp of it fails (the
+    object slips out, the grasp never settles): a missing point, not a verdict on the run."""
     from experiments.compress import run_compress
     from twin.sim.backend import SimBackend
 
@@ -174,17 +177,19 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray]:
             profile=_PROCEDURE["profile"],
         )
         s, _, _, contact = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
-        return s, contact
+        return s, contact, ""
     except EstimateError as exc:  # the scratch run's path means nothing to the user: say what failed
         reason = str(exc).removeprefix(f"{scratch / 'run'}: ")
-        raise EstimateError(
-            f"the twin's own grasp of the described object at E = {foam.young_pa / 1e3:.3g} kPa fails: "
-            f"{reason}"
-        ) from None
+        return math.nan, np.full(3, math.nan), f"at E = {foam.young_pa / 1e3:.3g} kPa: {reason}"
     except SimulationUnstableError as exc:
         raise EstimateError(f"simulating E = {foam.young_pa / 1e3:.3g} kPa: {exc}") from None
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _failed(why: str, reasons: list[str]) -> EstimateError:
+    """The twin's own grasp of the described object failed where the estimate needs it."""
+    return EstimateError(f"{why}; the twin's own grasp of the described object fails {reasons[0]}")
 
 
 def _profile(run: Run) -> CompressProfile:
@@ -233,7 +238,15 @@ def estimate_modulus(
     truth = (
         (run.metadata.get("object") or {}).get("young_pa") if run.metadata.get("backend") == "sim" else None
     )
-    sims: dict[tuple, tuple[float, np.ndarray]] = {}
+    sims: dict[tuple, tuple[float, np.ndarray, str]] = {}
+
+    def key(foam: FoamParams) -> tuple:
+        return (foam.young_pa, foam.poisson, foam.size_m, foam.placement_m, foam.mesh_scale_m)
+
+    def reasons(foams: list[FoamParams]) -> list[str]:
+        """Why the twin's own grasp failed, for those of `foams` already simulated."""
+        return [sims[key(f)][2] for f in foams if key(f) in sims and sims[key(f)][2]]
+
     planned = 1 + 2 * len(BRACKET) + 8
 
     with worker_pool(workers, initializer=_init_worker, initargs=(profile, duration_s, cycles)) as pool:
@@ -242,7 +255,6 @@ def estimate_modulus(
             return [sims[k][0] for k in _run(foams)]
 
         def _run(foams: list[FoamParams]) -> list[tuple]:
-            key = lambda f: (f.young_pa, f.poisson, f.size_m, f.placement_m, f.mesh_scale_m)  # noqa: E731
             todo = {key(f): f for f in foams if key(f) not in sims}
             for k, s in zip(todo, pool.map(_simulate, list(todo.values())), strict=True):
                 sims[k] = s
@@ -254,11 +266,17 @@ def estimate_modulus(
             return replace(base, young_pa=float(np.clip(young_pa, *RANGE_PA)), **changes)
 
         (s_ref,) = evaluate([at(REFERENCE_PA)])
+        if not math.isfinite(s_ref):
+            raise _failed(f"{run.path}: no first estimate", reasons([at(REFERENCE_PA)]))
         estimate = REFERENCE_PA * measured / s_ref  # S ~ E to first order
         for _ in range(2):
             bracket = [at(estimate * f) for f in BRACKET]
             s = np.log(evaluate(bracket))
             log_e = np.log([f.young_pa for f in bracket])
+            held = np.isfinite(s)  # a modulus at which the twin's own grasp failed is a missing point
+            if held.sum() < MIN_POINTS:
+                raise _failed(f"{run.path}: too few moduli near {estimate / 1e3:.3g} kPa", reasons(bracket))
+            log_e, s = log_e[held], s[held]
             (power, intercept), residual, *_ = np.polyfit(log_e, s, 1, full=True)
             # The procedure's own scatter: the grasp settles a little differently at every modulus, so
             # the simulations scatter about the power law, and the run's S is one more such draw.
@@ -270,7 +288,7 @@ def estimate_modulus(
                     "the way this run's was"
                 )
             estimate = math.exp((math.log(measured) - intercept) / power)
-            if bracket[0].young_pa <= estimate <= bracket[-1].young_pa:
+            if math.exp(log_e[0]) <= estimate <= math.exp(log_e[-1]):
                 break
         if not RANGE_PA[0] <= estimate <= RANGE_PA[1]:
             raise EstimateError(
@@ -288,11 +306,14 @@ def estimate_modulus(
             nuisances["size"] = [
                 at(estimate, size_m=tuple(e + s * SIZE_TOLERANCE_M for e in base.size_m)) for s in (1, -1)
             ]
-        centre = math.log(evaluate([at(estimate)])[0])
-        shifted = evaluate([f for fs in nuisances.values() for f in fs])
-        twin_contact = np.array(
-            [sims[k][1] for k in _run([at(estimate)] + [f for fs in nuisances.values() for f in fs])]
-        )
+        moved = [f for fs in nuisances.values() for f in fs]
+        (s_centre,) = evaluate([at(estimate)])
+        if not math.isfinite(s_centre):
+            raise _failed(f"{run.path}: no simulation at the estimate", reasons([at(estimate)]))
+        centre = math.log(s_centre)
+        shifted = evaluate(moved)
+        twin_contact = np.array([sims[k][1] for k in _run([at(estimate), *moved])])
+        twin_contact = twin_contact[np.isfinite(twin_contact).all(axis=1)]
     # A posterior check: the twin, with the object anywhere within the tolerances, must grasp it as the
     # run did (which fingertips touch, and for how long); otherwise it measures another stiffness.
     low, high = twin_contact.min(axis=0) - CONTACT_TOLERANCE, twin_contact.max(axis=0) + CONTACT_TOLERANCE
@@ -310,7 +331,10 @@ def estimate_modulus(
         "scatter": scatter / power,
     }
     for i, name in enumerate(nuisances):
-        shifts = [abs(math.log(v) - centre) / power for v in shifted[2 * i : 2 * i + 2]]
+        ends = [v for v in shifted[2 * i : 2 * i + 2] if math.isfinite(v)]
+        if not ends:  # the twin cannot grasp the object anywhere within this tolerance
+            raise _failed(f"{run.path}: no {name.replace('_', ' ')} within its tolerance", reasons(moved))
+        shifts = [abs(math.log(v) - centre) / power for v in ends]
         sigma[name] = max(shifts) / math.sqrt(3.0)  # uniform within the tolerance
     sigma["total"] = math.sqrt(sum(v**2 for v in sigma.values()))
     half = 1.959964 * sigma["total"]

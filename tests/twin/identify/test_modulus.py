@@ -7,6 +7,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from experiments.compress import CompressProfile, run_compress
@@ -122,3 +123,17 @@ def test_a_mesh_foams_modulus_is_recovered_within_its_interval(tmp_path):
     m = estimate.to_json()
     assert m["object"]["shape"] == "mesh" and m["twin_young_pa"] == 25e3
     assert abs(m["error"]) < 0.15 and m["covered"], m
+
+
+def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_reason():
+    """Where the twin's own grasp fails (a 20 mm sphere slips between the fingers), the simulation is a
+    missing point that says why, so one bad modulus in a bracket does not end the estimate."""
+    from twin.sim import modulus
+
+    modulus._init_worker(CompressProfile(), duration_s=9.0, cycles=2)
+    tiny = get_object("sphere").with_overrides(size_m=(0.02, 0.02, 0.02))
+    stiffness, contact, reason = modulus._simulate(tiny)
+    assert math.isnan(stiffness) and np.isnan(contact).all()
+    assert reason.startswith("at E = 80 kPa: ") and "twin-modulus" not in reason
+    held, _, why = modulus._simulate(get_object("sphere"))
+    assert held > 0 and why == ""

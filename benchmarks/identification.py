@@ -24,11 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2032
-"""A fresh draw: 2031 was looked at while the squeeze statistic was chosen, so it no longer counts."""
-FIRST_NOISE_SEED = 6000
+DRAW_SEED = 2033
+"""A fresh draw: 2031 was looked at while the squeeze statistic was chosen and 2032 while a failed twin
+simulation was made a missing point, so neither counts as hidden any more."""
+FIRST_NOISE_SEED = 7000
 PER_SHAPE = 8
-CANDIDATES = 14
+CANDIDATES = 18
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or
 squirt out while the hand closes; those runs are scored apart, as refusals the estimator must make)."""
 HELD_BELOW_COUNTS = 16000

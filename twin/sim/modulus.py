@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twin.identify.identify import fingertip_contact, squeeze_stiffness
+from twin.identify.identify import WINDOW_SETTLE_S, fingertip_contact, squeeze_stiffness
 from twin.identify.reaction import IdentificationError
 from twin.identify.signals import MissingStreamError, load_signals
 from twin.interface.errors import ConfigError, SimulationUnstableError
@@ -212,8 +212,6 @@ def _window_end_s(run: Run, profile: CompressProfile, cycles: int) -> float:
     compress = cmd["phase"] == phases.index("compress") if "compress" in phases else np.zeros(0, bool)
     if not compress.any():
         raise EstimateError(f"{run.path}: no compression phase recorded; the modulus comes from one")
-    from twin.identify.identify import WINDOW_SETTLE_S
-
     return float(cmd.t_s[compress][0]) + WINDOW_SETTLE_S + cycles / profile.frequency_hz
 
 
@@ -247,7 +245,8 @@ def estimate_modulus(
         """Why the twin's own grasp failed, for those of `foams` already simulated."""
         return [sims[key(f)][2] for f in foams if key(f) in sims and sims[key(f)][2]]
 
-    planned = 1 + 2 * len(BRACKET) + 8
+    # the first simulation, a bracket, the estimate and both ends of each tolerance (a mesh has no size)
+    planned = 1 + len(BRACKET) + 1 + 2 * (3 if base.shape == "mesh" else 4)
 
     with worker_pool(workers, initializer=_init_worker, initargs=(profile, duration_s, cycles)) as pool:
 

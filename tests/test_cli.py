@@ -412,3 +412,49 @@ def test_a_bad_emulator_url_is_one_line_naming_the_url_once(tmp_path: Path, caps
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.count("bh8emu://?baud=fast") == 1, err
     assert not (tmp_path / "x").exists()
+
+
+def test_version_and_help_show_what_a_user_needs():
+    from twin import __version__
+
+    assert twin("--version").stdout.strip() == f"twin {__version__}"
+    compress = " ".join(twin("run", "compress", "--help").stdout.split())
+    assert "run length (s), up to a day (default: 10.0)" in compress
+    assert "(default: block)" in compress and "(default: sim)" in compress
+    assert "(default: 20.0)" in " ".join(twin("run", "free", "--help").stdout.split())
+
+
+def test_objects_fits_80_columns_and_a_reader_that_leaves_early_is_no_error():
+    env = {**os.environ, "COLUMNS": "80"}
+    table = subprocess.run([*TWIN, "objects"], capture_output=True, text=True, env=env).stdout
+    assert max(len(line.rstrip()) for line in table.splitlines()) <= 80
+    for p in LIBRARY.values():  # every name and size whole, on its own line
+        size = "x".join(f"{s * 1e3:.0f}" for s in p.size_m)
+        assert any(line.split()[:1] == [p.name] and size in line for line in table.splitlines()), p.name
+    read, write = os.pipe()
+    os.close(read)  # `twin objects --json | head`: the reader is gone before the first write
+    result = subprocess.run([*TWIN, "objects", "--json"], stdout=write, stderr=subprocess.PIPE, text=True)
+    os.close(write)
+    assert result.returncode == 0 and result.stderr == ""
+
+
+def test_a_refusal_draws_no_progress_bar_first(tmp_path: Path):
+    result = twin("run", "compress", "--backend", "hardware", "--out", str(tmp_path / "r"))  # progress on
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.count("\n") == 1 and "no BH8 hand is configured" in result.stderr
+
+
+def test_view_without_a_display_prints_commands_that_run(tmp_path: Path):
+    out = tmp_path / "run"
+    assert main(["run", "compress", "--duration", "0.5", "--out", str(out), "--no-progress"]) == 0
+    shown = twin("view", str(out)).stdout
+    assert "FILES" not in shown and f"--serve-web {out / 'run.rrd'}" in shown
+
+
+def test_emulate_rig_writes_nothing_into_the_working_directory(tmp_path: Path):
+    argv = ["emulate", "rig", "--no-cameras", "--duration", "0.5"]
+    result = subprocess.run([*TWIN, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    line = next(line for line in result.stdout.splitlines() if line.startswith("rig file:"))
+    rig_file = Path(line.split()[-1])
+    assert not rig_file.is_relative_to(tmp_path) and list(tmp_path.iterdir()) == []

@@ -49,6 +49,7 @@ BASE: dict[tuple[str, ...], tuple[dict[str, str], list[str]]] = {
     ("view",): ({"run_dir": "RUN"}, []),
     ("calibrate", "cameras"): ({}, []),
     ("objects",): ({}, []),
+    ("export",): ({"runs": "RUN"}, ["--out", "new_export"]),
 }
 
 

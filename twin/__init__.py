@@ -1,7 +1,13 @@
-"""barrett-twin: a MuJoCo digital twin and hardware bridge of a Barrett BH8 hand squeezing foam."""
+"""barrett-twin: a MuJoCo digital twin and hardware bridge of a Barrett BH8 hand squeezing foam.
+
+The public API (docs/api.md) is importable from here: `twin.sim_backend`, `twin.hardware_backend`,
+`twin.run`, `twin.compress`, `twin.open_run`, ... Those names load on first use (twin.api), so
+`import twin` stays light for the modules that only need `twin.units`.
+"""
 
 import os
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
 # Headless by default: MuJoCo reads MUJOCO_GL when it is first imported, and any twin module may be
 # what imports it (the sim, the viewer, the hand's kinematics); a caller's own choice is kept.
@@ -11,3 +17,36 @@ try:
     __version__ = version("barrett-twin")
 except PackageNotFoundError:  # running from a source tree that was not installed
     __version__ = "0+unknown"
+
+_API = (
+    "Backend",
+    "ControllerFn",
+    "HandCommand",
+    "HandReading",
+    "Run",
+    "RunOutcome",
+    "SafetyLimits",
+    "compress",
+    "foam",
+    "free",
+    "hardware_backend",
+    "library",
+    "load_shape_model",
+    "open_run",
+    "run",
+    "sim_backend",
+)
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str) -> Any:
+    """twin.api's names, imported on first use."""
+    if name in _API:
+        from twin import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'twin' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])

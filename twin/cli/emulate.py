@@ -1,0 +1,114 @@
+"""`twin emulate hand|rig`: serve the twin-backed emulators until Ctrl-C or --duration."""
+
+from __future__ import annotations
+
+import argparse
+
+from twin.interface.errors import ConfigError
+from twin.validation import duration, integer, out_file, seed
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Declare the command and its options."""
+    p = sub.add_parser("emulate", help="serve emulated devices backed by the twin")
+    p.add_argument("what", choices=("hand", "rig"), help="hand: the BH8-262; rig: every emulated device")
+    p.add_argument(
+        "--baud",
+        type=integer(1, 10_000_000),
+        default=9600,
+        help="rate the hand powers up at (default 9600; the BH8-262's rates: 600 to 38400)",
+    )
+    p.add_argument("--port", default="pty", metavar="pty|tcp:PORT", help="where to serve (default pty)")
+    p.add_argument("--faults", metavar="SPEC", help="hand faults, e.g. garbage@40,drop@80,vanish@200")
+    p.add_argument("--tactile-faults", metavar="SPEC", help="rig: tactile faults, e.g. corrupt@30,stall@60:1")
+    p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
+    p.add_argument("--seed", type=seed(), default=0, help="seed of the twin's sensor noise")
+    p.add_argument(
+        "--rig-file", type=out_file(), metavar="FILE", help="write a rig.toml pointing here (rig: always)"
+    )
+    p.add_argument(
+        "--duration", type=duration(), metavar="S", help="stop after S seconds, up to a day (default: Ctrl-C)"
+    )
+    p.add_argument(
+        "--no-cameras", action="store_true", help="rig: leave the stereo cameras out (they cost CPU)"
+    )
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    """`twin emulate hand|rig`: serve the twin-backed emulators until Ctrl-C (or --duration)."""
+    import time
+
+    from hardware.bh262.driver import SUPPORTED_BAUD
+
+    if args.baud not in SUPPORTED_BAUD:
+        raise ConfigError(f"--baud {args.baud}: not one of {', '.join(map(str, SUPPORTED_BAUD))}")
+    where = args.port
+    if where != "pty" and not (
+        where.startswith("tcp:") and where[4:].isascii() and where[4:].isdigit() and int(where[4:]) < 65536
+    ):
+        raise ConfigError(f"--port {where!r}: expected pty or tcp:PORT (tcp:0 picks a free port)")
+    from hardware.bh262.emulator import make_hand_emulator
+    from hardware.rig_config import rig_toml
+    from hardware.rig_emulator import RigEmulator
+    from twin.sim.foam import get_object
+
+    object_name = None if args.object == "none" else args.object
+    if object_name:
+        get_object(object_name)  # unknown names fail here, in one line
+
+    def event(message: str) -> None:
+        print(f"[emulator] {message}", flush=True)
+
+    if args.what == "hand":
+        emulator = make_hand_emulator(
+            object_name, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
+        )
+    else:
+        emulator = RigEmulator(
+            object_name,
+            baud=args.baud,
+            faults=args.faults,
+            tactile_faults=args.tactile_faults,
+            seed=args.seed,
+            on_event=event,
+            cameras=not args.no_cameras,
+        )
+    try:
+        if args.what == "hand":
+            address = emulator.serve_pty() if where == "pty" else emulator.serve_tcp(int(where[4:]))
+        else:
+            address, tactile_address = emulator.serve(where)
+    except OSError as exc:
+        emulator.close()
+        raise ConfigError(f"--port {where}: {exc.strerror or exc}") from None
+    print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {args.object})", flush=True)
+    if args.what == "rig":
+        print(f"tactile: {tactile_address}  (PPS pads, 162 taxels at 30 Hz)", flush=True)
+        if emulator.camera_addresses is None:
+            print("cameras: not emulated (--no-cameras)", flush=True)
+        else:
+            left, right = emulator.camera_addresses
+            rate = emulator.cameras.rate_hz
+            print(f"cameras: {left}  {right}  (MJPEG over HTTP, 320x240 at {rate:g} fps)", flush=True)
+        print(f"rig file: {emulator.write_rig_file(args.rig_file)}", flush=True)
+    elif args.rig_file:
+        args.rig_file.write_text(rig_toml(address, baud=args.baud))
+        print(f"rig file: {args.rig_file}", flush=True)
+    print("ready; Ctrl-C stops", flush=True)
+    deadline = time.monotonic() + args.duration if args.duration else float("inf")
+    try:
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+            if emulator.failed():  # a serving thread died: say so and exit, never idle as if "ready"
+                from twin.interface.errors import DeviceError
+
+                raise DeviceError(f"the emulator stopped serving: {emulator.failed()}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emulator.close()
+    print("emulator stopped", flush=True)
+    return 0
+
+
+command = cmd_emulate

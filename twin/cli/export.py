@@ -1,0 +1,48 @@
+"""`twin export RUN... --format lerobot|parquet --out DIR`: runs for learning pipelines (twin.export)."""
+
+from __future__ import annotations
+
+import argparse
+
+from twin.validation import new_dir, run_dir
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Declare the command and its options."""
+    p = sub.add_parser(
+        "export", help="write runs as a LeRobot dataset (one episode per run) or plain Parquet tables"
+    )
+    p.add_argument("runs", nargs="+", type=run_dir(), metavar="RUN", help="run directories")
+    p.add_argument(
+        "--format",
+        choices=("lerobot", "parquet"),
+        default="lerobot",
+        help="lerobot: LeRobot's v3.0 dataset layout; parquet: one table per stream",
+    )
+    p.add_argument("--out", type=new_dir(), required=True, metavar="DIR", help="a new or empty directory")
+    p.add_argument("--no-images", action="store_true", help="lerobot: leave the stereo frames out")
+
+
+def command(args: argparse.Namespace) -> int:
+    """Export, then say where and what."""
+    from twin.export import export_runs
+
+    out = export_runs(args.runs, args.out, args.format, images=not args.no_images)
+    if args.format == "lerobot":
+        import json
+
+        info = json.loads((out / "meta" / "info.json").read_text())
+        features = [k for k in info["features"] if "index" not in k and k != "timestamp"]
+        print(
+            f"wrote {out}: LeRobot dataset {info['codebase_version']}, {info['total_episodes']} episode(s), "
+            f"{info['total_frames']} frames at {info['fps']} fps ({', '.join(features)})"
+        )
+        absent = [name for name in ("observation.tactile", "observation.images.left") if name not in features]
+        if args.no_images and "observation.images.left" in absent:
+            absent.remove("observation.images.left")
+        for name in absent:
+            print(f"  {name.removesuffix('.left')}: left out, not every run recorded it")
+    else:
+        tables = sorted(p.name for p in out.glob("*.parquet"))
+        print(f"wrote {out}: {', '.join(tables)} and runs.json ({len(args.runs)} run(s))")
+    return 0

@@ -1,0 +1,132 @@
+"""`twin identify`: eq. 4 per finger and the foam's modulus from a compress run."""
+
+from __future__ import annotations
+
+import argparse
+
+from twin.cli.common import SIZE_MM, WORKERS, add_mesh_scale, run_metadata
+from twin.interface.errors import ConfigError
+from twin.validation import existing_file, experiment_name, out_dir, run_dir
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Declare the command and its options."""
+    p = sub.add_parser(
+        "identify", help="eq. 4 per finger and the foam's Young's modulus, from a compress run"
+    )
+    p.add_argument("run_dir", type=run_dir(), metavar="RUN", help="a `twin run compress` run directory")
+    p.add_argument(
+        "--free", type=run_dir(), metavar="FREE_RUN", help="a `twin run free` run: the hand's own terms"
+    )
+    p.add_argument("--model", choices=("kelvin-voigt", "hunt-crossley"), default="kelvin-voigt")
+    p.add_argument("--json", action="store_true", help="also print the results file")
+    p.add_argument("--out", type=out_dir(), metavar="DIR", help="where the results go (default RUN/identify)")
+    p.add_argument(
+        "--shape",
+        choices=("block", "cylinder", "sphere"),
+        help="the object's shape (default: the run's record)",
+    )
+    p.add_argument(
+        "--size-mm", type=SIZE_MM, nargs=3, metavar=("X", "Y", "Z"), help="with --shape: the object's extents"
+    )
+    p.add_argument(
+        "--object-mesh", type=existing_file(), metavar="FILE", help="the object as a closed .stl/.obj surface"
+    )
+    add_mesh_scale(p)
+    p.add_argument("--workers", type=WORKERS, default=2, help="simulations in parallel (processes)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _described_object(args: argparse.Namespace, metadata: dict):
+    """The object the modulus is inferred for: --shape/--size-mm, --object-mesh, or the run's record."""
+    from twin.sim.foam import LIBRARY, mesh_object
+
+    if args.object_mesh is not None:
+        from twin.sim.scene import foam_mesh
+
+        foam = mesh_object(args.object_mesh, LIBRARY["block"], args.mesh_scale)
+        foam_mesh(foam)  # a bad mesh fails here, in one line
+        return foam
+    if args.shape is not None:
+        size = tuple(s / 1e3 for s in args.size_mm)
+        return LIBRARY["block"].with_overrides(name=args.shape, shape=args.shape, size_m=size)
+    if (metadata.get("object") or {}).get("shape"):
+        return None  # the run's own record (twin.sim.modulus reads it)
+    raise ConfigError(
+        f"{args.run_dir}: the run does not describe its object; give --shape and --size-mm, or --object-mesh"
+    )
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """`twin identify`: eq. 4 per finger, the modulus, and the files that show them."""
+    if (args.shape is None) != (args.size_mm is None):
+        raise ConfigError("--shape and --size-mm go together")
+    if args.object_mesh is not None and args.shape is not None:
+        raise ConfigError("--object-mesh or --shape/--size-mm, not both")
+    metadata = run_metadata(args.run_dir, "RUN")
+    if args.free is not None:
+        name = experiment_name(run_metadata(args.free, "--free"))
+        if name != "free":
+            raise ConfigError(
+                f"--free {args.free}: a '{name}' run, not a `twin run free` run (the hand's own terms come "
+                "from the empty hand swinging its fingers)"
+            )
+    description = _described_object(args, metadata)
+    from twin.identify.identify import identify_run
+    from twin.identify.report import FigureProcess, write_results
+
+    ident = identify_run(args.run_dir, args.free, args.model)  # eq. 4: quick, and it fails early
+    estimate = _estimate_modulus(args, description)
+    ident.material = estimate.to_json()
+    with FigureProcess() as figure_process:
+        paths = write_results(ident, args.out or args.run_dir / "identify", figure_process)
+    if args.json:
+        print(paths["results"].read_text(), end="")
+        return 0
+    for f in ident.fingers:
+        p = f.fit.params
+        model = ", ".join(f"{k} {v:.4g}" for k, v in p.items())
+        print(
+            f"F{f.finger}: {model}  (R^2 {f.fit.r2:.3f}, rms {f.fit.rms_n:.2f} N); "
+            f"secant {f.secant_n_m:.0f} N/m; "
+            f"moment arm {f.moment_arm_m * 1e3:.1f} mm; eq. 4 residual {f.eq4_residual_rms_nm:.3f} N*m"
+        )
+    print(f"grip: {ident.grip[0]:.4f} +- {ident.grip[1]:.4f} N*m per 1000 counts (gauges against drives)")
+    low, high = (v / 1e3 for v in estimate.ci95_pa)
+    line = f"E = {estimate.young_pa / 1e3:.2f} kPa  (95 % {low:.2f}-{high:.2f} kPa)"
+    if estimate.twin_young_pa is not None:
+        error = estimate.young_pa / estimate.twin_young_pa - 1
+        line += f"; the twin's E {estimate.twin_young_pa / 1e3:.2f} kPa, error {100 * error:+.1f} %"
+    print(line)
+    widths = ", ".join(f"{k} {100 * v:.1f} %" for k, v in estimate.sigma_log.items() if k != "total")
+    print(
+        f"  from the squeeze stiffness {estimate.stiffness_n_m:.0f} N/m over {estimate.cycles} cycles and "
+        f"{len(estimate.simulations)} simulations of the procedure; 1-sigma: {widths}"
+    )
+    for note in ident.notes:
+        print(f"note: {note}")
+    print(f"wrote {paths['results']}, {paths['figure'].name}, {paths['rerun'].name}")
+    return 0
+
+
+def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001
+    """twin.sim.modulus.estimate_modulus with a progress bar (simulations done of those planned)."""
+    from twin.sim.modulus import estimate_modulus
+
+    if args.no_progress:
+        return estimate_modulus(args.run_dir, description=description, workers=args.workers)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    columns = (TextColumn("[bold]modulus"), BarColumn(), MofNCompleteColumn(), TextColumn("simulations"))
+    with Progress(*columns, TimeElapsedColumn(), transient=True) as bar:
+        task = bar.add_task("simulations", total=None)
+
+        def progress(done: int, planned: int) -> None:
+            bar.update(task, completed=done, total=planned)
+
+        return estimate_modulus(
+            args.run_dir, description=description, workers=args.workers, progress=progress
+        )
+
+
+command = cmd_identify

@@ -1,0 +1,112 @@
+"""`twin info`: a run directory's streams, rates, fields and metadata."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from twin.cli.common import surface_summary
+from twin.interface.errors import ConfigError
+from twin.validation import check_run_metadata, experiment_name, run_dir
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Declare the command and its options."""
+    p = sub.add_parser("info", help="summarize a run directory")
+    p.add_argument("run_dir", type=run_dir(), metavar="DIR")
+    p.add_argument("--json", action="store_true")
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    """`twin info DIR`: streams, sample counts, rates, duration, metadata."""
+    from twin.recording import open_run
+
+    run = open_run(args.run_dir)
+    meta = check_run_metadata(run.info, run.path / "run.json")
+    summary = run.summary()
+    differ = [
+        {"stream": name, "readable": readable, "recorded": recorded}
+        for name, (recorded, readable) in run.sample_mismatches().items()
+    ]
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "path": str(run.path),
+                    "status": run.status,
+                    "error": run.info.get("error"),
+                    "warnings": run.warnings,
+                    "streams": summary,
+                    "truncated": sorted(run.truncated),
+                    "recorded_samples": run.info.get("samples"),
+                    "samples_differ": differ,
+                    "metadata": meta,
+                },
+                indent=2,
+                default=str,
+            )
+        )
+        return 0
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    console = Console()
+    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {escape(run.status)}")
+    if isinstance(run.info.get("error"), str):
+        console.print(f"  [red]error: {escape(run.info['error'])}")
+    for warning in run.warnings:
+        console.print(f"  [yellow]warning: {escape(str(warning))}")
+    for key in ("backend", "experiment", "duration_s", "seed"):
+        if key in meta:
+            value = experiment_name(meta) if key == "experiment" else meta[key]
+            console.print(f"  {key}: {escape(str(value))}")
+    if meta.get("object"):
+        console.print(f"  object: {escape(_object_summary(meta['object']))}")
+    if meta.get("stereo_truth"):
+        try:
+            truth = surface_summary(meta["stereo_truth"])
+        except (KeyError, TypeError, ValueError):
+            raise ConfigError(f"{run.path / 'run.json'}: metadata.stereo_truth is incomplete") from None
+        console.print(f"  reconstruction vs truth: {truth}")
+    table = Table(title="streams")
+    for col in ("stream", "samples", "rate (Hz)", "measured (Hz)", "duration (s)"):
+        table.add_column(col, justify="right" if col != "stream" else "left")
+    for st in summary:
+        table.add_row(
+            st["name"],
+            str(st["samples"]),
+            f"{st['rate_hz']:g}",
+            f"{st['measured_rate_hz']:.2f}",
+            f"{st['duration_s']:.2f}",
+        )
+    console.print(table)
+    fields = Table(title="fields")
+    for col in ("stream", "field", "unit", "kind", "shape"):
+        fields.add_column(col)
+    for st in summary:
+        for name, f in st["fields"].items():
+            fields.add_row(st["name"], name, escape(f["unit"]), f["kind"], escape(str(tuple(f["shape"]))))
+    console.print(fields)
+    if run.truncated:
+        console.print(f"[yellow]truncated streams (crash recovery): {', '.join(sorted(run.truncated))}")
+    never_closed = " (its last count: the run never closed)" if run.status == "running" else ""
+    for d in differ:
+        console.print(
+            f"[yellow]{d['stream']}: {d['readable']} samples readable, run.json records "
+            f"{d['recorded']}{never_closed}"
+        )
+    return 0
+
+
+def _object_summary(obj: dict) -> str:
+    """name (shape, E, nu) of a run's object, with whichever of them run.json records."""
+    details = [obj["shape"]] if "shape" in obj else []
+    if "young_pa" in obj:
+        details.append(f"E = {obj['young_pa']:g} Pa")
+    if "poisson" in obj:
+        details.append(f"nu = {obj['poisson']:g}")
+    return f"{obj.get('name', '?')} ({', '.join(details)})"
+
+
+command = cmd_info

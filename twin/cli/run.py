@@ -1,0 +1,166 @@
+"""`twin run compress|free`: an experiment on the twin or the rig, through the API (twin.api)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TYPE_CHECKING
+
+from twin.cli.common import (
+    add_foam_overrides,
+    add_mesh_scale,
+    add_run_options,
+    print_completion,
+    surface_summary,
+    with_progress,
+)
+from twin.interface.errors import ConfigError
+from twin.validation import existing_dir, existing_file
+
+if TYPE_CHECKING:
+    from twin.interface.backend import Backend
+    from twin.sim.foam import FoamParams
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Declare the command and its options."""
+    p = sub.add_parser("run", help="run an experiment")
+    run_sub = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
+    c.add_argument("--object", default="block", help="library object (see `twin objects`)")
+    c.add_argument(
+        "--object-mesh",
+        type=existing_file(),
+        metavar="FILE",
+        help="a foam of any closed shape: an .stl/.obj surface (e.g. a scan), with --object's material",
+    )
+    add_mesh_scale(c)
+    add_run_options(c, duration_s=10.0)
+    c.add_argument(
+        "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
+    )
+    c.add_argument(
+        "--render-native",
+        action="store_true",
+        help="sim cameras: render at 640x480 and scale to 320x240 (slower) instead of at 320x240",
+    )
+    c.add_argument(
+        "--stereo-calibration",
+        type=existing_file(),
+        metavar="FILE",
+        help="cameras: calibration file (`twin calibrate cameras`; default: sim truth, rig.toml on hardware)",
+    )
+    c.add_argument(
+        "--bbox",
+        metavar="X,Y,W,H",
+        help="cameras: the object's box on the first frame, rectified left pixels (sim default: the foam's)",
+    )
+    c.add_argument(
+        "--predict",
+        type=existing_dir(),
+        metavar="MODEL",
+        help="a `twin train` model: predict the object's contour from every hand reading (with --cameras, "
+        "beside the measured one)",
+    )
+    add_foam_overrides(c)
+
+    f = run_sub.add_parser("free", help="swing the empty hand's fingers (identifies eq. 4's hand terms)")
+    add_run_options(f, duration_s=20.0)
+
+
+def _foam_from_args(args: argparse.Namespace) -> FoamParams:
+    """The object of `twin run compress`: --object with its overrides (mm on the command line, m in the
+    API), or --object-mesh with --object's material."""
+    from twin import api
+
+    return api.foam(
+        args.object,
+        mesh=getattr(args, "object_mesh", None),
+        mesh_scale_m=getattr(args, "mesh_scale", 0.001),
+        young_pa=args.young,
+        poisson=args.poisson,
+        damping=args.damping,
+        density_kg_m3=args.density,
+        size_m=tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None,
+        fidelity=args.fidelity,
+        resolution=args.resolution,
+        dof=args.dof,
+        friction=args.friction,
+        placement_m=tuple(v / 1e3 for v in args.placement_mm) if args.placement_mm else None,
+    )
+
+
+def _backend(args: argparse.Namespace, foam: FoamParams | None, cameras: bool = False) -> Backend:
+    """--backend sim: the twin holding `foam`; --backend hardware: the rig of --rig / --hand."""
+    from twin import api
+
+    if args.backend == "sim":
+        if args.hand or args.rig:
+            raise ConfigError("--hand and --rig need --backend hardware")
+        return api.sim_backend(
+            foam,
+            seed=args.seed,
+            cameras=cameras,
+            render_native=getattr(args, "render_native", False),
+            stereo_calibration=getattr(args, "stereo_calibration", None),
+        )
+    if getattr(args, "stereo_calibration", None) is not None:
+        raise ConfigError("--stereo-calibration is for the sim; on hardware set calibration in [stereo]")
+    return api.hardware_backend(args.rig, hand=args.hand, cameras=cameras)
+
+
+def cmd_compress(args: argparse.Namespace) -> int:
+    """`twin run compress`: validate, run, report."""
+    from twin import api
+
+    foam = _foam_from_args(args)
+    shape_model = None if args.predict is None else api.load_shape_model(args.predict, foam.name)
+    if (args.bbox is not None or args.stereo_calibration is not None) and not args.cameras:
+        raise ConfigError("--bbox and --stereo-calibration need --cameras")
+    box = None
+    if args.bbox is not None:
+        from twin.vision.pipeline import parse_box
+
+        box = parse_box(args.bbox)
+    backend = _backend(args, foam, cameras=args.cameras)
+    outcome = with_progress(
+        args.duration,
+        not args.no_progress,
+        lambda progress: api.compress(
+            backend,
+            duration_s=args.duration,
+            out=args.out,
+            object_name=foam.name,
+            progress=progress,
+            stereo_box=box,
+            shape_model=shape_model,
+            argv=sys.argv,
+        ),
+    )
+    truth = print_completion(outcome).get("stereo_truth")
+    if truth:
+        print(f"reconstruction vs the twin's truth: {surface_summary(truth)}")
+    print(f"view it: twin view {outcome.run_dir}")
+    return 0
+
+
+def cmd_free(args: argparse.Namespace) -> int:
+    """`twin run free`: the empty hand swings its fingers (eq. 4's hand terms)."""
+    from twin import api
+
+    backend = _backend(args, None)
+    outcome = with_progress(
+        args.duration,
+        not args.no_progress,
+        lambda progress: api.free(
+            backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
+        ),
+    )
+    print_completion(outcome)
+    print(f"use it: twin identify RUN --free {outcome.run_dir}")
+    return 0
+
+
+def command(args: argparse.Namespace) -> int:
+    """`twin run EXPERIMENT`."""
+    return cmd_free(args) if args.experiment == "free" else cmd_compress(args)

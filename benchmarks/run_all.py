@@ -30,6 +30,7 @@ SECTIONS = (
     "shape_network",
     "sweep_throughput",
     "run_overhead",
+    "env_throughput",
 )
 
 

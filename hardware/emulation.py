@@ -167,6 +167,35 @@ class Link:
             close_fd(self.fd)
 
 
+NO_REALTIME_ENV = "BARRETT_TWIN_NO_REALTIME"
+"""Set (to anything) to keep the emulators' serial threads at normal priority."""
+SERIAL_RT_PRIORITY = 1
+"""The lowest SCHED_FIFO priority: above every ordinary thread, below the kernel's own."""
+SERIAL_NICE = -10
+
+
+def raise_thread_priority() -> str:
+    """Let the calling thread (a serial line's) preempt ordinary work, as the hand's own firmware is
+    never kept waiting by the host's load: SCHED_FIFO at priority 1 where permitted (root,
+    CAP_SYS_NICE or an rtprio limit), else nice -10 where permitted, else nothing. Returns what it got.
+
+    Only a thread that sleeps between short bursts may have this: it handles at most the wire's bytes.
+    Threads it starts inherit the class, so it starts none. Linux only; elsewhere "normal"."""
+    if os.environ.get(NO_REALTIME_ENV) or not hasattr(os, "sched_setscheduler"):
+        return "normal"
+    tid = threading.get_native_id()
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(SERIAL_RT_PRIORITY))
+        return f"SCHED_FIFO {SERIAL_RT_PRIORITY}"
+    except (PermissionError, OSError):
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, tid, SERIAL_NICE)
+        return f"nice {SERIAL_NICE}"
+    except (PermissionError, OSError):
+        return "normal"
+
+
 def close_fd(fd: int) -> None:
     """Close a descriptor, ignoring one that is already gone."""
     with contextlib.suppress(OSError):

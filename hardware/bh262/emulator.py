@@ -7,15 +7,27 @@ injected into RealTime replies (see `FaultPlan`) to prove the driver's recovery 
 
 from __future__ import annotations
 
+import contextlib
+import queue
 import select
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 
-from hardware.bh262.firmware import Firmware, RealTimeTwin
+import numpy as np
+
+from hardware.bh262.firmware import QUIET_AFTER_S, QUIET_BEFORE_S, Firmware, RealTimeTwin
 from hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
-from hardware.emulation import NO_ARG, Fault, FaultArg, Link, PortServer, parse_faults
+from hardware.emulation import (
+    NO_ARG,
+    Fault,
+    FaultArg,
+    Link,
+    PortServer,
+    parse_faults,
+    raise_thread_priority,
+)
 
 MAX_DELAY_S = 60.0
 """The longest `late` delay a fault may ask for (the driver gives up on a reply long before)."""
@@ -89,11 +101,25 @@ class SerialSession:
     that leaves is seen within POLL_S and its backlog is dropped instead of being paced out.
     """
 
-    def __init__(self, firmware: Firmware, link: Link, faults: FaultPlan, stop: threading.Event) -> None:
+    def __init__(
+        self,
+        firmware: Firmware,
+        link: Link,
+        faults: FaultPlan,
+        stop: threading.Event,
+        on_event: Callable[[str], None] | None = None,
+    ) -> None:
         self.fw = firmware
         self.link = link
         self.faults = faults
         self.stop = stop
+        self.on_event = on_event or (lambda _msg: None)
+        """Told each Supervisory exchange and, when RealTime mode ends, how many blocks it answered."""
+        self._loop_blocks = 0
+        self.priority = "normal"
+        """The scheduling the serial thread got (raise_thread_priority), for the loop summaries."""
+        self._late_s: deque[float] = deque(maxlen=100_000)
+        """Per RealTime reply of the present loop: how much later than due it was written (s)."""
         self._buffer = bytearray()
         self._arrivals: deque[list[float]] = deque()
         """Per received chunk still (partly) in the buffer: [its bytes left in the buffer, arrival time]."""
@@ -162,6 +188,12 @@ class SerialSession:
             if chunk[0] <= 0:
                 self._arrivals.popleft()
 
+    def _flush_pending(self) -> None:
+        """An error ends RealTime mode: blocks the host sent after the failing one are dropped, not
+        read as a Supervisory line, so that its 0x03 (RTAbort) is answered with a prompt at once."""
+        self._pump(0.0)
+        self._consume(len(self._buffer), on_wire=False)
+
     def _cut(self, index: int) -> None:
         """Remove the byte at `index` of the buffer (a Ctrl-C taken out of the stream)."""
         del self._buffer[index]
@@ -207,6 +239,19 @@ class SerialSession:
                 return
         self._tx_end = t
 
+    def send_block(self, data: bytes) -> None:
+        """A RealTime reply, written whole when its last byte would have crossed the wire after the
+        request's (one wake-up per cycle instead of one per millisecond of wire: on a loaded machine
+        every wake-up can be late). A host that stops reading loses it, as with send()."""
+        due = max(self._rx_end, self._tx_end) + len(data) * self._byte_s
+        self.fw.twin.keep_quiet(due - QUIET_BEFORE_S, due + QUIET_AFTER_S)
+        self._sleep_until(due)
+        self._late_s.append(time.monotonic() - due)
+        if not self.link.write(data, time.monotonic() + WRITE_TIMEOUT_S):
+            self._tx_end = time.monotonic()
+            return
+        self._tx_end = max(due, time.monotonic())
+
     # --- the firmware --------------------------------------------------------------------------
 
     def _process(self) -> None:
@@ -218,10 +263,12 @@ class SerialSession:
                 return
 
     def _supervisory(self) -> bool:
-        # Ctrl-C (0x03) outside a motion has nothing to abort; LF is ignored as on a terminal.
-        while self._buffer[:1] in (EXIT_REALTIME, b"\n"):
+        while self._buffer[:1] == b"\n":  # LF is ignored, as on a terminal
             self._consume(1)
         end = self._buffer.find(b"\r")
+        ctrl_c = self._buffer.find(EXIT_REALTIME)
+        if ctrl_c >= 0 and (end < 0 or ctrl_c < end):
+            return self._cancel_line(ctrl_c)
         if self._overflow or end > MAX_LINE_BYTES or (end < 0 and len(self._buffer) > MAX_LINE_BYTES):
             return self._drop_long_line(end)
         if end < 0:
@@ -231,12 +278,35 @@ class SerialSession:
         self._wait_rx()
         line = raw.decode("ascii", "replace")
         rest = self.fw.handle_line(line, self.send, self._ctrl_c)
+        if line.strip():
+            self.on_event(f"{line.strip()} -> {_summary(rest, self.fw.options.line_end)}")
+        if self.fw.loop is not None:
+            self._loop_blocks = 0
         new_baud = self.fw.pending_baud()
         if new_baud is not None:  # PSET BAUD: the echo went at the old rate; the prompt waits for a CR
             self.fw.baud = new_baud
             self._consume(len(self._buffer), on_wire=False)
             return True
         self.send(rest)
+        return True
+
+    def _loop_ended(self, how: str) -> None:
+        late = ""
+        if self._late_s:
+            ms = np.sort(np.asarray(self._late_s)) * 1e3
+            p50, p99 = ms[len(ms) // 2], ms[min(len(ms) - 1, int(0.99 * len(ms)))]
+            late = f"; written late by p50 {p50:.2f} ms, p99 {p99:.2f} ms, max {ms[-1]:.1f} ms"
+        self._late_s.clear()
+        blocks, priority = self._loop_blocks, self.priority
+        self.on_event(f"RealTime: {blocks} blocks answered, then {how}{late} (serial thread: {priority})")
+
+    def _cancel_line(self, ctrl_c: int) -> bool:
+        """Ctrl-C (0x03) outside a motion: the line typed so far is dropped and a fresh prompt answered,
+        as leaving RealTime does (Barrett's RTAbort and libgripper's connect both wait for it)."""
+        self._consume(ctrl_c + 1)
+        self._overflow = False
+        self._wait_rx()
+        self.send(self.fw.options.line_end + PROMPT)
         return True
 
     def _drop_long_line(self, end: int) -> bool:
@@ -258,12 +328,15 @@ class SerialSession:
         if header == EXIT_REALTIME:
             self._consume(1)
             self._wait_rx()
+            self._loop_ended("0x03")
             self.send(self.fw.leave_loop())
             return True
         if header not in (b"C", b"c", b"A", b"a"):
             self._consume(1)
             self._wait_rx()
             self.fw.loop = None
+            self._loop_ended(f"ERR {int(ErrorFlag.INVALID_REALTIME_HEADER)} (header {bytes(header)!r})")
+            self._flush_pending()
             self.send(le + f"ERR {int(ErrorFlag.INVALID_REALTIME_HEADER)}".encode() + le + PROMPT)
             return True
         size = 1 + loop.control_size if header in (b"C", b"c") else 1
@@ -271,20 +344,22 @@ class SerialSession:
             return False
         data = bytes(self._buffer[1:size])
         self._consume(size)
-        # The sensors are sampled as the block comes in; the control takes effect once it is all in.
+        # The sensors are sampled as the block comes in, from the twin's latest published state; the
+        # control is handed to the twin to take effect once its last byte has crossed the wire.
         reply = self.fw.feedback_block() if header in (b"C", b"A") else b"*"
-        self._wait_rx()
         if data:
-            self.fw.apply_control(data)
+            self.fw.apply_control(data, self._rx_end)
         self._replies += 1
+        self._loop_blocks += 1
         self._send_reply(reply)
         return True
 
     def _send_reply(self, reply: bytes) -> None:
         fault = self.faults.at(self._replies)
         if fault is None:
-            self.send(reply)
+            self.send_block(reply)
             return
+        self._wait_rx()
         le = self.fw.options.line_end
         if fault.kind == "garbage":
             self.send(GARBAGE + reply)
@@ -298,11 +373,36 @@ class SerialSession:
         elif fault.kind == "err":
             if self.fw.options.err_leaves_realtime:
                 self.fw.loop = None
+                self._loop_ended(f"ERR {int(fault.arg or 0)} (injected)")
+                self._flush_pending()
             self.send(le + f"ERR {int(fault.arg or 0)}".encode() + le + PROMPT)
         elif fault.kind == "mute":
             self._mute_until = time.monotonic() + (fault.arg if fault.arg is not None else float("inf"))
         elif fault.kind == "vanish":
             raise _VanishedError
+
+
+class EventLog:
+    """Event lines passed to `on_event` from a thread of its own, so that a slow or stopped reader of
+    the emulator's output (a full pipe) never holds the hand; past MAX_QUEUED waiting lines, new
+    ones are dropped."""
+
+    MAX_QUEUED = 1000
+
+    def __init__(self, on_event: Callable[[str], None]) -> None:
+        self._on_event = on_event
+        self._queue: queue.Queue[str] = queue.Queue(self.MAX_QUEUED)
+        # Started here, by the thread that builds the emulator: a thread started by a serial thread
+        # would inherit its raised priority (raise_thread_priority).
+        threading.Thread(target=self._run, name="bh8-events", daemon=True).start()
+
+    def __call__(self, message: str) -> None:
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(message)
+
+    def _run(self) -> None:
+        while True:
+            self._on_event(self._queue.get())
 
 
 class HandEmulator(PortServer):
@@ -323,6 +423,8 @@ class HandEmulator(PortServer):
         self.twin = twin
         self.firmware = Firmware(twin, options=options, power_up_baud=baud)
         self.faults = faults or FaultPlan()
+        self._exchanges = EventLog(self.on_event)
+        """Each Supervisory exchange and the end of each RealTime loop, off the serial thread."""
 
     def _on_first_start(self) -> None:
         self.twin.start()
@@ -331,7 +433,9 @@ class HandEmulator(PortServer):
         self.twin.stop()
 
     def _session(self, link: Link) -> str:
-        return SerialSession(self.firmware, link, self.faults, self.stop_event).serve()
+        session = SerialSession(self.firmware, link, self.faults, self.stop_event, self._exchanges)
+        session.priority = raise_thread_priority()
+        return session.serve()
 
     def failed(self) -> str | None:
         """Why the emulator no longer serves (a session or the twin's physics thread died), else None."""
@@ -358,3 +462,9 @@ def make_hand_emulator(
     foam = get_object(object_name) if object_name else None
     twin = RealTimeTwin(SimBackend(foam, seed=seed, stereo=stereo))
     return HandEmulator(twin, baud=baud, options=options, faults=plan, on_event=on_event)
+
+
+def _summary(reply: bytes, line_end: bytes) -> str:
+    """A reply in one line for the event log: its result lines, `ERR n`, `*` or the prompt."""
+    body = reply.removesuffix(PROMPT).strip(line_end).replace(line_end, b" | ")
+    return body.decode("ascii", "replace") or "(prompt)"

@@ -111,9 +111,9 @@ def assert_served(address: tuple[str, int]) -> None:
 
 
 def expected_reply(line: bytes) -> bytes | None:
-    """What the hand answers to one line (without its CR); None: echo then ERR n with n unknown."""
-    while line[:1] in (b"\x03", b"\n"):
-        line = line[1:]
+    """What the hand answers to one line (without its CR or any 0x03); None: echo then ERR n with n
+    unknown."""
+    line = line.lstrip(b"\n")
     if len(line) > MAX_LINE_BYTES:
         return LE + b"ERR 32" + LE + PROMPT
     text = line.decode("ascii", "replace")
@@ -130,12 +130,16 @@ def assert_protocol(sent: bytes, got: bytes) -> None:
     for line in lines:
         line = leftover + line
         leftover = b""
+        *cancelled, line = line.split(b"\x03")
+        for _ in cancelled:  # Ctrl-C drops what was typed before it and answers a fresh prompt
+            assert got[pos : pos + len(LE + PROMPT)] == LE + PROMPT, (line, got[pos:])
+            pos += len(LE + PROMPT)
         want = expected_reply(line)
         if want is not None:
             assert got[pos : pos + len(want)] == want, (line, got[pos:])
             pos += len(want)
             continue
-        stripped = line.lstrip(b"\x03\n")
+        stripped = line.lstrip(b"\n")
         echo = stripped.decode("ascii", "replace").encode("ascii", "replace")
         m = re.compile(re.escape(echo) + rb"\n\rERR (\d+)\n\r=> ").match(got, pos)
         assert m, (line, got[pos:])

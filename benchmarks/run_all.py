@@ -20,6 +20,7 @@ SECTIONS = (
     "realtime",
     "foam_fidelity",
     "serial_cycle",
+    "emulator_latency",
     "bridge_under_load",
     "tactile_sensors",
     "stereo_calibration",

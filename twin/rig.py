@@ -36,7 +36,7 @@ from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
 from twin.vision.contour import ContourError, hull, outlines, resample
-from twin.vision.pipeline import StereoPipeline, SurfaceFrame, stereo_stream_spec
+from twin.vision.pipeline import HandSnapshot, StereoPipeline, SurfaceFrame, stereo_stream_spec
 
 if TYPE_CHECKING:
     from twin.shape.model import ShapeModel  # torch: imported only by runs that predict
@@ -455,6 +455,9 @@ class Rig:
             self.stereo_pipeline.observe_hand(reading)
         if truth is not None:
             self._record("truth", reading.t_s, truth)
+            log_truth = getattr(self.viewer, "log_truth", None)
+            if log_truth is not None:
+                log_truth(reading.t_s, truth)
         self.safety.observe(reading)
         if self.shape_model is not None:
             inputs = np.concatenate([reading.position_counts[:3], physical["torque_nm"]])
@@ -475,23 +478,20 @@ class Rig:
                     "phase": self.phases.index(controller.phase) if controller.phase in self.phases else -1,
                 },
             )
+            log_command = getattr(self.viewer, "log_command", None)
+            if log_command is not None:
+                log_command(self.backend.clock.now(), applied.position_counts, controller.phase)
         if self.viewer is not None:
-            self.viewer.log_scalars(
-                "hand",
-                reading.t_s,
-                {
-                    "position_counts": reading.position_counts[:3],
-                    "velocity_counts": reading.velocity_counts[:3],
-                    "torque_nm": physical["torque_nm"],
-                    "force_kg": physical["force_kg"],
-                },
-                labels={
-                    "position_counts": FINGER_LABELS,
-                    "velocity_counts": FINGER_LABELS,
-                    "torque_nm": FINGER_LABELS,
-                    "force_kg": FINGER_LABELS,
-                },
-            )
+            log_hand = getattr(self.viewer, "log_hand", None)
+            if log_hand is not None:
+                log_hand(reading.t_s, reading.position_counts, reading.strain_counts, physical)
+            else:
+                self.viewer.log_scalars(
+                    "hand",
+                    reading.t_s,
+                    {"position_counts": reading.position_counts[:3], "torque_nm": physical["torque_nm"]},
+                    labels={"position_counts": FINGER_LABELS, "torque_nm": FINGER_LABELS},
+                )
 
     def _deliver_tactile(self, scan: TactileReading) -> None:
         pressure = self.tactile_calibration.to_kpa(scan.counts)
@@ -524,16 +524,16 @@ class Rig:
         while len(self._stereo_jobs) >= MAX_STEREO_BACKLOG:  # a starved worker: bound the memory
             self._record_stereo_oldest()
         # The worker waits for the pair itself: the rig never stalls on a frame still being rendered.
-        job = self._vision.submit(self._process_frame, pending, pipeline.tactile_points(), truth)
+        job = self._vision.submit(self._process_frame, pending, pipeline.hand_snapshot(), truth)
         self._stereo_jobs.append(job)
 
     def _process_frame(
-        self, pending: Future[StereoFrame], tactile_points: np.ndarray, truth: object
+        self, pending: Future[StereoFrame], hand: HandSnapshot, truth: object
     ) -> tuple[StereoFrame, SurfaceFrame, dict | None, np.ndarray | None]:
         """On the vision worker: take the pair, reconstruct and fuse, score against the truth if known,
         and trace the measured contour when a shape model predicts one."""
         frame = pending.result()
-        surface = self.stereo_pipeline.process(frame, tactile_points)
+        surface = self.stereo_pipeline.process(frame, hand)
         r = surface.reconstruction
         score = self.backend.score_surface(truth, r.points_hand, r.pixels)
         return frame, surface, score, self._measured_contour(frame, surface)
@@ -562,6 +562,9 @@ class Rig:
         if score is not None:
             self.surface_scores.append(score)
             self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
+            if self.viewer is not None:
+                error = {k: score[k] for k in ("median_mm", "p90_mm") if k in score}
+                self.viewer.log_scalars("stereo_truth", frame.t_s, error)
 
     def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame, measured: np.ndarray | None) -> None:
         self._record("stereo", frame.t_s, surface.record())

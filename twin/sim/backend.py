@@ -14,7 +14,7 @@ from twin.interface.hand_spec import HandConfig
 from twin.interface.stereo_spec import StereoConfig
 from twin.interface.tactile_spec import TactileConfig
 from twin.kinematics import HAND_FRAME_BODY
-from twin.sim.cameras import LEFT_CAMERA, SimStereo, camera_pose_cv
+from twin.sim.cameras import LEFT_CAMERA, CameraPlacement, SimStereo, camera_pose_cv
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import HAND_XML, build_model
@@ -71,17 +71,22 @@ class SimBackend(Backend):
         stereo: bool = False,
         stereo_render_native: bool = False,
         stereo_calibration_file: Path | None = None,
+        stereo_placement: CameraPlacement | None = None,
     ) -> None:
-        """`stereo_render_native`: render the cameras at 640x480 and area-average to 320x240 (as a
-        camera read out and scaled) instead of at 320x240 directly. Off by default: on 2 cores it
-        takes a run with cameras from ~1.3x to ~1.0x real time (BENCHMARKS.md), and the direct render
-        reconstructs as accurately (block, 10 s: median 0.32 vs 0.36 mm, coverage 72 vs 69 %)."""
+        """`stereo_placement`: where the pair stands (twin.sim.cameras.PLACEMENTS; None: the scene's
+        default, DEFAULT_PLACEMENT). `stereo_render_native`: render the cameras at 640x480 and
+        area-average to 320x240 (as a camera read out and scaled) instead of at 320x240 directly.
+        Off by default: on 2 cores it takes a run with cameras from ~1.3x to ~1.0x real time
+        (BENCHMARKS.md), and the direct render reconstructs as accurately (block, 10 s: median 0.32
+        vs 0.36 mm, coverage 72 vs 69 %)."""
         if stereo_calibration_file is not None:
             StereoCalibration.load(stereo_calibration_file)  # a bad file fails here, before any run
         self.stereo_calibration_file = stereo_calibration_file
         self.foam = foam
         self.seed = seed
-        self.world = SimWorld(build_model(foam, cameras=stereo), hint=_divergence_hint(foam))
+        self.world = SimWorld(
+            build_model(foam, cameras=stereo, camera_placement=stereo_placement), hint=_divergence_hint(foam)
+        )
         rng = np.random.default_rng(seed)
         self.hand = SimHand(self.world, hand_config or HandConfig(), rng)
         self.tactile = (

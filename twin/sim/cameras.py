@@ -1,10 +1,11 @@
-"""The simulated Flea2 stereo pair: two MuJoCo cameras above the palm-up hand, rendered offscreen.
+"""The simulated Flea2 stereo pair: two MuJoCo cameras looking at the palm-up hand, rendered offscreen.
 
-Rig (hardware_facts §5, paper §4): the cameras are `BASELINE_M` apart along the palm's x axis, each
-toed in by half of `VERGENCE_DEG` so the optical axes cross at `TARGET_M` (on the palm axis, mid-height
-of the foam); that puts them 0.1 / tan 15 deg = 373 mm above the target, 386 mm from it along each axis.
-Image "up" is the palm's +y (toward F3). Frames are rendered at the native 640x480, area-averaged
-to the processed 320x240 (as a camera read out at full resolution and scaled), then noised.
+Rig (hardware_facts §5, paper §4): the cameras are `BASELINE_M` apart, each toed in by half of
+`VERGENCE_DEG` so the optical axes cross at `TARGET_M` (on the palm axis, mid-height of the foam), 386 mm
+from each camera. Where the pair stands is data (`CameraPlacement`, named in `PLACEMENTS`): the paper's
+lateral view (from the palm's +x side, 30 deg above the palm plane, where the fingers leave the
+object in view) or straight down on the palm (`top`, image up = the palm's +y; DEFAULT_PLACEMENT).
+Frames are rendered at 320x240 (or at the native 640x480 and area-averaged), then noised.
 
 Conventions for the calibration are OpenCV's (twin.vision.calibration): a MuJoCo camera looks along
 its -z with y up, an OpenCV camera along +z with y down, so cv_from_mujoco = diag(1, -1, -1).
@@ -13,8 +14,8 @@ its -z with y up, an OpenCV camera along +z with y down, so cv_from_mujoco = dia
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import mujoco
@@ -45,20 +46,82 @@ CV_FROM_MUJOCO = np.diag([1.0, -1.0, -1.0])
 """Camera axes: OpenCV (x right, y down, z forward) from MuJoCo (x right, y up, looking along -z)."""
 
 
+@dataclass(frozen=True)
+class CameraPlacement:
+    """Where the pair looks from, as data (the rig description): the pair's midpoint sits on the ray from
+    `target_m` at `azimuth_deg` (from the palm's +x toward +y) and `elevation_deg` (above the palm plane;
+    90 = straight down), as far as the baseline and the angle between the axes put the axes' crossing on
+    the target; the baseline is horizontal in the image."""
+
+    name: str = "lateral"
+    baseline_m: float = BASELINE_M
+    vergence_deg: float = VERGENCE_DEG
+    """Angle between the two optical axes (each camera toed in by half of it)."""
+    target_m: tuple[float, float, float] = TARGET_M
+    azimuth_deg: float = 0.0
+    elevation_deg: float = 90.0
+
+    def __post_init__(self) -> None:
+        where = f"camera placement {self.name!r}"
+        if not 0.0 < self.baseline_m <= 2.0:
+            raise ValueError(f"{where}: baseline_m {self.baseline_m} is not in (0, 2]")
+        if not 0.0 < self.vergence_deg < 120.0:
+            raise ValueError(f"{where}: vergence_deg {self.vergence_deg} is not in (0, 120)")
+        if not -10.0 <= self.elevation_deg <= 90.0:
+            raise ValueError(f"{where}: elevation_deg {self.elevation_deg} is not in [-10, 90]")
+        if len(self.target_m) != 3:
+            raise ValueError(f"{where}: target_m must be 3 numbers (x, y, z)")
+
+
+PLACEMENTS: dict[str, CameraPlacement] = {
+    "top": CameraPlacement("top", elevation_deg=90.0),
+    "lateral": CameraPlacement("lateral", azimuth_deg=0.0, elevation_deg=30.0),
+}
+"""Named placements: `top` looks straight down on the palm-up hand (image up = the palm's +y, toward
+F3); `lateral` is the paper's view (§4, Fig. 1b): from the side where F1/F2 and F3 leave a gap, 30 deg
+above the palm plane, so the object shows beside the closing fingers."""
+DEFAULT_PLACEMENT = "top"
+"""The scene's placement when none is given. The study (BENCHMARKS.md, stereo_pipeline) favours
+`lateral` for the reconstruction (every library foam within targets vs 1-2 of 5 from the top); it is
+not the default yet because the shape pipeline's contours (twin.vision.contour's plane projection,
+experiments/sweep.py --from-runs, the trained shape models) assume the top view."""
+
+
+def _up_hint(forward: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Image up: the palm's +y seen from above, the palm's normal (+z) from the side."""
+    return np.array([0.0, 1.0, 0.0]) if abs(forward[2]) > 0.99 else np.array([0.0, 0.0, 1.0])
+
+
+def placement_axes(
+    placement: CameraPlacement | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The pair's image right (along the baseline), image up, and the unit vector from the target
+    toward the pair's midpoint, in the palm frame."""
+    p = placement or PLACEMENTS[DEFAULT_PLACEMENT]
+    az, el = math.radians(p.azimuth_deg), math.radians(p.elevation_deg)
+    out = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    right = np.cross(-out, _up_hint(-out))
+    right /= np.linalg.norm(right)
+    return right, np.cross(out, right), out
+
+
 def stereo_camera_poses(
-    baseline_m: float = BASELINE_M,
-    vergence_deg: float = VERGENCE_DEG,
-    target_m: Sequence[float] = TARGET_M,
+    placement: CameraPlacement | None = None,
 ) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """Position and MuJoCo xyaxes of each camera: baseline along x, converging on target_m from above."""
-    target = np.asarray(target_m, dtype=float)
-    half = math.radians(vergence_deg) / 2.0
-    height = 0.5 * baseline_m / math.tan(half)
+    """Position and MuJoCo xyaxes of each camera of `placement` (default: DEFAULT_PLACEMENT)."""
+    p = placement or PLACEMENTS[DEFAULT_PLACEMENT]
+    target = np.asarray(p.target_m, dtype=float)
+    half = math.radians(p.vergence_deg) / 2.0
+    distance = 0.5 * p.baseline_m / math.sin(half)  # camera to target along each axis
+    mid_distance = 0.5 * p.baseline_m / math.tan(half)
+    right, _, out = placement_axes(p)
+    up_hint = _up_hint(-out)
+    mid = target + mid_distance * out
     poses = {}
     for name, side in ((LEFT_CAMERA, -1.0), (RIGHT_CAMERA, 1.0)):
-        pos = target + np.array([side * baseline_m / 2.0, 0.0, height])
-        forward = (target - pos) / np.linalg.norm(target - pos)
-        x_axis = np.cross(forward, [0.0, 1.0, 0.0])  # image right; image up stays the palm's +y
+        pos = mid + side * 0.5 * p.baseline_m * right
+        forward = (target - pos) / distance
+        x_axis = np.cross(forward, up_hint)  # image right
         x_axis /= np.linalg.norm(x_axis)
         y_axis = np.cross(-forward, x_axis)
         poses[name] = (pos, np.concatenate([x_axis, y_axis]))
@@ -69,14 +132,13 @@ def add_stereo_cameras(
     root: mjcf.RootElement,
     config: StereoConfig | None = None,
     *,
-    baseline_m: float = BASELINE_M,
-    vergence_deg: float = VERGENCE_DEG,
-    target_m: Sequence[float] = TARGET_M,
+    placement: CameraPlacement | None = None,
     foam_texture: bool = True,
 ) -> None:
-    """Add the Flea2 pair to the world body, cheap offscreen rendering, and a porous foam texture."""
+    """Add the Flea2 pair at `placement` to the world body, cheap offscreen rendering, and a porous
+    foam texture."""
     config = config or StereoConfig()
-    for name, (pos, xyaxes) in stereo_camera_poses(baseline_m, vergence_deg, target_m).items():
+    for name, (pos, xyaxes) in stereo_camera_poses(placement).items():
         root.worldbody.add(
             "camera", name=name, pos=pos.tolist(), xyaxes=xyaxes.tolist(), fovy=config.fovy_deg
         )

@@ -23,7 +23,7 @@ from dm_control import mjcf
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from twin.sim.cameras import HAND_BODY
+from twin.sim.cameras import DEFAULT_PLACEMENT, HAND_BODY, PLACEMENTS, CameraPlacement, placement_axes
 from twin.sim.scene import PALM_SURFACE_Z_M, compile_scene, scene_mjcf
 
 PALM_BOARD_SQUARE_M = 0.014
@@ -150,11 +150,15 @@ def add_chessboard(
 
 
 def calibration_scene(
-    *, palm_board: bool = True, chessboard: bool = True, offsamples: int = CALIBRATION_OFFSAMPLES
+    *,
+    palm_board: bool = True,
+    chessboard: bool = True,
+    offsamples: int = CALIBRATION_OFFSAMPLES,
+    placement: CameraPlacement | None = None,
 ) -> mujoco.MjModel:
-    """The hand (no foam) with the stereo pair, the palm board and the mocap chessboard, rendered with
-    `offsamples` multisampling."""
-    root = scene_mjcf(None, cameras=True)
+    """The hand (no foam) with the stereo pair at `placement` (None: the default), the palm board and
+    the mocap chessboard, rendered with `offsamples` multisampling."""
+    root = scene_mjcf(None, cameras=True, camera_placement=placement)
     root.visual.quality.offsamples = offsamples
     if palm_board:
         add_palm_board(root)
@@ -190,16 +194,23 @@ def random_chessboard_poses(
     count: int,
     rng: np.random.Generator,
     *,
-    centre_m: Sequence[float] = (0.0, 0.0, 0.17),
+    placement: CameraPlacement | None = None,
+    lift_m: float = 0.06,
     spread_m: float = 0.03,
     max_tilt_deg: float = 30.0,
     max_spin_deg: float = 20.0,
     squares: tuple[int, int] = CHESSBOARD_SQUARES,
     square_m: float = CHESSBOARD_SQUARE_M,
 ) -> list[tuple[NDArray[np.float64], Rotation]]:
-    """`count` poses (first-corner position, rotation) of the chessboard facing up at the cameras:
-    its centre within `spread_m` of `centre_m`, tilted up to `max_tilt_deg` about a random horizontal
-    axis and turned up to `max_spin_deg` about the vertical; the board stays in both views."""
+    """`count` poses (first-corner position, rotation) of the chessboard held up to the cameras of
+    `placement` (default: the scene's): its centre within `spread_m` of the point `lift_m` from the
+    cameras' target toward them, facing them (face up for the top view, turned toward the pair for a
+    lateral one), tilted up to `max_tilt_deg` about a random axis in its plane and turned up to
+    `max_spin_deg` about its normal; the board stays in both views."""
+    p = placement or PLACEMENTS[DEFAULT_PLACEMENT]
+    right, up, toward = placement_axes(p)
+    centre_m = np.asarray(p.target_m, dtype=float) + lift_m * toward
+    facing = Rotation.from_matrix(np.column_stack([right, up, toward]))  # board x right, z at the pair
     half = np.array([(squares[0] / 2 - 1) * square_m, (squares[1] / 2 - 1) * square_m, 0.0])
     poses = []
     for _ in range(count):
@@ -207,7 +218,7 @@ def random_chessboard_poses(
         axis_angle = rng.uniform(0, 2 * np.pi)
         tilt = np.radians(max_tilt_deg) * np.sqrt(rng.uniform())
         tilt_rot = Rotation.from_rotvec(tilt * np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0]))
-        rotation = tilt_rot * spin
-        centre = np.asarray(centre_m) + rng.uniform(-spread_m, spread_m, 3) * [1.0, 1.0, 0.7]
+        rotation = facing * tilt_rot * spin
+        centre = centre_m + facing.apply(rng.uniform(-spread_m, spread_m, 3) * [1.0, 1.0, 0.7])
         poses.append((centre - rotation.apply(half), rotation))
     return poses

@@ -22,16 +22,19 @@ PALM_SURFACE_Z_M = 0.075
 FOAM_NAME = "foam"
 
 
-def scene_mjcf(foam: FoamParams | None = None, *, cameras: bool = False) -> mjcf.RootElement:
+def scene_mjcf(
+    foam: FoamParams | None = None, *, cameras: bool = False, camera_placement: object = None
+) -> mjcf.RootElement:
     """The hand scene as an mjcf tree, with the foam resting on the palm if given, and the simulated
-    Flea2 stereo pair (twin.sim.cameras) above it if `cameras`."""
+    Flea2 stereo pair (twin.sim.cameras) if `cameras`, at `camera_placement` (a
+    twin.sim.cameras.CameraPlacement; None: its default)."""
     root = mjcf.from_path(str(SCENE_XML))
     if foam is not None:
         add_foam(root, foam)
     if cameras:
         from twin.sim.cameras import add_stereo_cameras  # cameras.py reads FOAM_NAME from here
 
-        add_stereo_cameras(root)
+        add_stereo_cameras(root, placement=camera_placement)
     return root
 
 
@@ -111,6 +114,8 @@ def compile_scene(root: mjcf.RootElement) -> mujoco.MjModel:
         raise ConfigError(f"MuJoCo cannot build the scene: {reason}") from None
 
 
-def build_model(foam: FoamParams | None = None, *, cameras: bool = False) -> mujoco.MjModel:
+def build_model(
+    foam: FoamParams | None = None, *, cameras: bool = False, camera_placement: object = None
+) -> mujoco.MjModel:
     """The compiled scene with an optional foam object and, optionally, the stereo cameras."""
-    return compile_scene(scene_mjcf(foam, cameras=cameras))
+    return compile_scene(scene_mjcf(foam, cameras=cameras, camera_placement=camera_placement))

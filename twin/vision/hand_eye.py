@@ -73,11 +73,40 @@ def _square_blobs(
         low, high = np.linalg.eigvalsh(cov)
         if low <= 0 or np.sqrt(high / low) > max_elongation:
             continue
-        if not moment_range[0] <= (m["mu20"] + m["mu02"]) / m["m00"] ** 2 <= moment_range[1]:
+        if not moment_range[0] <= np.sqrt(low * high) / m["m00"] <= moment_range[1]:
             continue
         keep.append(k)
+    keep = _largest_group(keep, centroids, stats[:, cv2.CC_STAT_AREA])
     kept = np.isin(labels, keep).astype(np.uint8) if keep else np.zeros_like(mask)
     return np.array(centroids[keep], dtype=float).reshape(-1, 2), kept
+
+
+GROUP_REACH = 2.5
+"""Blobs whose centroids lie within this many sqrt(area) of each other belong to one board: a board's
+squares meet at their corners (1.4 for a square seen from above, 1.6 seen 30 deg above its plane)."""
+
+
+def _largest_group(keep: list[int], centroids: NDArray[np.float64], areas: NDArray) -> list[int]:
+    """The largest set of `keep` components linked by nearness (a board), dropping stray dark blobs
+    elsewhere in the view (a floor tile seen obliquely looks like a square too)."""
+    if len(keep) < 2:
+        return keep
+    c = centroids[keep]
+    reach = GROUP_REACH * np.sqrt(np.asarray(areas, dtype=float)[keep])
+    dist = np.linalg.norm(c[:, None] - c[None], axis=2)
+    linked = dist <= np.minimum(reach[:, None], reach[None])
+    group = np.full(len(keep), -1)
+    for start in range(len(keep)):
+        if group[start] >= 0:
+            continue
+        group[start], stack = start, [start]
+        while stack:
+            i = stack.pop()
+            for j in np.flatnonzero(linked[i] & (group < 0)):
+                group[j] = start
+                stack.append(j)
+    largest = np.bincount(group).argmax()
+    return [k for k, g in zip(keep, group, strict=True) if g == largest]
 
 
 def dark_square_blobs(
@@ -85,8 +114,8 @@ def dark_square_blobs(
     *,
     min_area_frac: float = 2e-4,
     max_area_frac: float = 0.02,
-    max_elongation: float = 2.0,
-    moment_range: tuple[float, float] = (0.150, 0.190),
+    max_elongation: float = 3.5,
+    moment_range: tuple[float, float] = (0.075, 0.095),
     erode: int = 1,
 ) -> NDArray[np.float64]:
     """(N, 2) centroids (x, y pixels) of the square-looking dark blobs of `image`.
@@ -94,9 +123,9 @@ def dark_square_blobs(
     Blob analysis: threshold at a mean (darker pixels are foreground), erode the mask by `erode`
     pixels, label 4-connected components (cv2.connectedComponentsWithStats), keep those whose area
     lies within the given fractions of the image, whose principal axes differ by at most
-    `max_elongation`, and whose normalised second moment (mu20 + mu02) / area^2 lies in
-    `moment_range` (1/6 for a filled square at any rotation; rings, L shapes and strips fall
-    outside).
+    `max_elongation` (a square seen 20 deg above its plane: 2.9), and whose normalised second moment
+    sqrt(det(covariance)) / area lies in `moment_range` (1/12 for any parallelogram, i.e. a square
+    seen from any side, top or lateral; rings and L shapes fall above).
 
     Two passes: the first thresholds at the whole image's mean and finds the squares; the second
     thresholds at the mean of the smallest rotated rectangle around them, i.e. over the board

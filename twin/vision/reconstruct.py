@@ -9,9 +9,12 @@ Pipeline per stereo pair, each stage a small function:
 2. `ObjectTracker.track`: the object segmented in the rectified left view by a normalized-RGB
    (r = R/(R+G+B), g = G/(R+G+B)) histogram learnt from a bounding box on the first frame:
    back-projection, cv2.CamShift, then blob analysis (small blobs and blobs far from the window dropped).
-3. `compute_disparity`: Konolige block matching (cv2.StereoBM, 64 disparities, 15 px blocks).
-4. `disparity_to_cloud`: cv2.reprojectImageTo3D with Q; valid pixels inside the mask; far points
-   dropped; points taken to the hand frame (rectified left -> left camera -> hand).
+3. `disparity_around`: semi-global matching with the left-right check (cv2.StereoSGBM, 64 disparities,
+   `make_sgbm_matcher`; or Konolige block matching, `make_block_matcher`) on the part of the pair
+   around the tracked object.
+4. `disparity_to_cloud`: cv2.reprojectImageTo3D with Q; valid pixels inside the mask; far points and
+   points outside the hand's region dropped; points taken to the hand frame (rectified left -> left
+   camera -> hand).
 5. `surface_mesh`: scipy.spatial.Delaunay over the kept pixels' rectified image coordinates (a 2.5-D
    surface), triangles with an over-long 3-D edge removed.
 
@@ -257,14 +260,89 @@ def make_block_matcher(
     return bm
 
 
+DISP12_MAX_DIFF_PX = 2
+"""Left-right check: a pixel whose right-to-left match lands farther than this from it is dropped."""
+SGBM_UNIQUENESS = 5
+"""Percent by which the best match must beat the second best."""
+SGBM_SPECKLE_RANGE = 4
+"""Disparity step (x16 fixed point, i.e. 0.25 px) that splits a speckle island."""
+
+
+def make_sgbm_matcher(
+    num_disparities: int = 64, block_size: int = 3, min_disparity: int = 0
+) -> cv2.StereoSGBM:
+    """Semi-global matching (Hirschmuller) with its occlusion filters, the run's default matcher.
+
+    The smoothness penalties (P1, P2 = 8, 32 x block^2, OpenCV's advice for one channel) fill the foam's
+    weakly textured faces that block matching leaves empty; the left-right consistency check
+    (DISP12_MAX_DIFF_PX) drops pixels the right camera cannot see, where an occluding finger's
+    disparity would otherwise win; uniqueness and speckle filters drop ambiguous matches and small
+    islands. 3-way mode: 8 paths at about the cost of StereoBM on one core.
+    """
+    return cv2.StereoSGBM.create(
+        minDisparity=min_disparity,
+        numDisparities=num_disparities,
+        blockSize=block_size,
+        P1=8 * block_size * block_size,
+        P2=32 * block_size * block_size,
+        disp12MaxDiff=DISP12_MAX_DIFF_PX,
+        uniquenessRatio=SGBM_UNIQUENESS,
+        speckleWindowSize=50,
+        speckleRange=SGBM_SPECKLE_RANGE,
+        preFilterCap=31,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )
+
+
 def compute_disparity(
-    left_rect: NDArray[np.uint8], right_rect: NDArray[np.uint8], matcher: cv2.StereoBM
+    left_rect: NDArray[np.uint8], right_rect: NDArray[np.uint8], matcher: cv2.StereoMatcher
 ) -> NDArray[np.float32]:
     """Disparity in pixels (float32, NaN where block matching found no reliable match)."""
     gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im for im in (left_rect, right_rect)]
     raw = matcher.compute(gray[0], gray[1])
     disparity = raw.astype(np.float32) / np.float32(16.0)
     disparity[raw < matcher.getMinDisparity() * 16] = np.nan
+    return disparity
+
+
+@dataclass(frozen=True)
+class HandRegion:
+    """Where a held object can be, in the hand frame: a cylinder about the palm's axis (z), from just
+    below the palm's face up. Points outside (the floor, the bench, the room) are dropped before the
+    cloud's outlier test, which a large background blob of the object's colour would otherwise steer."""
+
+    radius_m: float = 0.15
+    z_min_m: float = 0.06
+    """A little below the BH8 palm's face (75 mm above the hand frame's origin)."""
+    z_max_m: float = 0.35
+
+    def contains(self, points_hand: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which (N, 3) hand-frame points lie inside."""
+        r2 = points_hand[:, 0] ** 2 + points_hand[:, 1] ** 2
+        z = points_hand[:, 2]
+        return (r2 <= self.radius_m**2) & (z >= self.z_min_m) & (z <= self.z_max_m)
+
+
+def disparity_around(
+    left_rect: NDArray[np.uint8],
+    right_rect: NDArray[np.uint8],
+    matcher: cv2.StereoMatcher,
+    mask: NDArray[np.bool_],
+) -> NDArray[np.float32]:
+    """compute_disparity on the part of the pair that can hold the masked pixels' matches: the mask's
+    rows (plus the matching window) and its columns plus the disparity search on both sides; NaN
+    elsewhere. Cropping both views alike leaves disparities unchanged, and matching only where the
+    object is costs a fraction of the whole frame (the object fills ~1/6 of it)."""
+    height, width = mask.shape
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    disparity = np.full((height, width), np.nan, dtype=np.float32)
+    if not len(rows):
+        return disparity
+    pad = matcher.getBlockSize() // 2 + 1
+    reach = max(abs(matcher.getMinDisparity()), abs(matcher.getMinDisparity() + matcher.getNumDisparities()))
+    y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, height)
+    x0, x1 = max(cols[0] - reach - pad, 0), min(cols[-1] + reach + pad + 1, width)
+    disparity[y0:y1, x0:x1] = compute_disparity(left_rect[y0:y1, x0:x1], right_rect[y0:y1, x0:x1], matcher)
     return disparity
 
 
@@ -275,11 +353,12 @@ def disparity_to_cloud(
     *,
     max_depth_m: float = 2.0,
     outlier_factor: float = 3.0,
+    region: HandRegion | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
     """3-D points (rectified left frame) of the valid masked pixels, far points dropped; and their (row, col).
 
-    Outliers: points behind the camera or beyond `max_depth_m`, then points farther from the cloud's
-    median than `outlier_factor` times the median such distance.
+    Outliers: points behind the camera or beyond `max_depth_m`, points outside `region` (hand frame) if
+    given, then points farther from the cloud's median than `outlier_factor` times the median such distance.
     """
     valid = mask & np.isfinite(disparity)
     xyz = cv2.reprojectImageTo3D(np.nan_to_num(disparity, nan=0.0), rectifier.Q)
@@ -287,6 +366,9 @@ def disparity_to_cloud(
     points = xyz[rows, cols].astype(np.float64)
     keep = np.isfinite(points).all(axis=1) & (points[:, 2] > 0) & (points[:, 2] <= max_depth_m)
     points, rows, cols = points[keep], rows[keep], cols[keep]
+    if region is not None and len(points):
+        keep = region.contains(to_hand(points, rectifier))
+        points, rows, cols = points[keep], rows[keep], cols[keep]
     if len(points):
         dist = np.linalg.norm(points - np.median(points, axis=0), axis=1)
         keep = dist <= outlier_factor * max(float(np.median(dist)), 1e-6)
@@ -351,23 +433,26 @@ def reconstruct(
     rectifier: Rectifier,
     tracker_or_mask: ObjectTracker | NDArray[np.bool_],
     *,
-    matcher: cv2.StereoBM | None = None,
+    matcher: cv2.StereoMatcher | None = None,
     max_depth_m: float = 2.0,
     outlier_factor: float = 3.0,
     max_edge_m: float = 0.008,
     mesh_stride: int = 1,
     mesh: bool = True,
     erode_px: int = 0,
+    region: HandRegion | None = None,
 ) -> Reconstruction:
     """The whole pipeline on one unrectified RGB pair.
 
     `tracker_or_mask`: an ObjectTracker (updated in place) or a boolean mask in the rectified left view.
-    `matcher`: a cv2.StereoBM (build it once with `default_matcher(rectifier)` when calling per frame).
+    `matcher`: a cv2.StereoSGBM or StereoBM (build it once with `default_matcher(rectifier)` when
+    calling per frame).
     `mesh_stride`: mesh only the points on every n-th row and column (n^2 fewer vertices, the mesh being
     the slowest stage); the triangles still index `points_hand`, which keeps every point.
     `mesh`: False leaves `triangles` empty (for a caller that meshes a fused cloud itself).
     `erode_px`: shrink the object's mask by this many pixels before taking points: at its border a
     block straddles the object and whatever hides it, and takes the nearer surface's disparity.
+    `region`: drop points outside this part of the hand frame (`HandRegion`).
     """
     if mesh_stride < 1:
         raise ValueError(f"mesh_stride must be >= 1, got {mesh_stride}")
@@ -387,11 +472,11 @@ def reconstruct(
         mask = cv2.erode(mask.astype(np.uint8), kernel).astype(bool)
     t2 = time.perf_counter()
     timings["track"] = 1e3 * (t2 - t1)
-    disparity = compute_disparity(left_rect, right_rect, matcher or default_matcher(rectifier))
+    disparity = disparity_around(left_rect, right_rect, matcher or default_matcher(rectifier), mask)
     t3 = time.perf_counter()
     timings["disparity"] = 1e3 * (t3 - t2)
     points, pixels = disparity_to_cloud(
-        disparity, mask, rectifier, max_depth_m=max_depth_m, outlier_factor=outlier_factor
+        disparity, mask, rectifier, max_depth_m=max_depth_m, outlier_factor=outlier_factor, region=region
     )
     points_hand = to_hand(points, rectifier)
     colors = left_rect[pixels[:, 0], pixels[:, 1]] if left_rect.ndim == 3 else None
@@ -408,8 +493,15 @@ def reconstruct(
     return Reconstruction(points_hand, colors, pixels, triangles, disparity, mask, box, timings)
 
 
-def default_matcher(rectifier: Rectifier, num_disparities: int = 64, block_size: int = 15) -> cv2.StereoBM:
-    """make_block_matcher searching around the optical axes' crossing (from 0 for a parallel rig)."""
+def default_matcher(
+    rectifier: Rectifier, num_disparities: int = 64, block_size: int = 3, kind: str = "sgbm"
+) -> cv2.StereoMatcher:
+    """The matcher (`kind` "sgbm": make_sgbm_matcher, "bm": make_block_matcher) searching around the
+    optical axes' crossing (from 0 for a parallel rig)."""
     d = rectifier.convergence_disparity
     min_disparity = 0 if d is None else round(d) - num_disparities // 2
-    return make_block_matcher(num_disparities, block_size, min_disparity)
+    if kind == "sgbm":
+        return make_sgbm_matcher(num_disparities, block_size, min_disparity)
+    if kind == "bm":
+        return make_block_matcher(num_disparities, block_size, min_disparity)
+    raise ValueError(f"matcher kind {kind!r}: expected 'sgbm' or 'bm'")

@@ -13,10 +13,14 @@ from twin.interface.errors import ConfigError
 from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
 from twin.sim.cameras import (
     LEFT_CAMERA,
+    PLACEMENTS,
     RIGHT_CAMERA,
+    TARGET_M,
+    CameraPlacement,
     SimStereo,
     add_stereo_cameras,
     ground_truth_calibration,
+    stereo_camera_poses,
 )
 from twin.sim.foam import get_object
 from twin.sim.scene import compile_scene, scene_mjcf
@@ -161,7 +165,7 @@ def test_calibration_geometry_matches_the_rig(world):
     axis_angle = math.degrees(math.acos(np.clip(cal.rotation[2, 2], -1, 1)))
     assert axis_angle == pytest.approx(30.0, abs=3.0)
     np.testing.assert_allclose(cal.rotation @ cal.rotation.T, np.eye(3), atol=1e-9)
-    # Above the palm, looking down: the left camera's optical axis points to -z of the hand.
+    # The default placement, above the palm looking down: the left optical axis points to -z of the hand.
     assert cal.hand_from_left[2, 3] > 0.3 and cal.hand_from_left[2, 2] < -0.9
     k = cal.left.matrix
     assert cal.left.image_size == (320, 240)
@@ -196,3 +200,46 @@ def test_calibration_round_trips_through_json(world, tmp_path):
     np.testing.assert_array_equal(cal.rotation, loaded.rotation)
     np.testing.assert_array_equal(cal.translation_m, loaded.translation_m)
     np.testing.assert_array_equal(cal.hand_from_left, loaded.hand_from_left)
+
+
+@pytest.mark.parametrize("name", sorted(PLACEMENTS))
+def test_every_placement_is_the_papers_pair_converging_on_the_target(name):
+    """Whatever the view: 20 cm baseline along the image rows, 30 deg between the optical axes, both
+    crossing at the target (MuJoCo's own camera frames of the compiled scene)."""
+    root = scene_mjcf(None)
+    add_stereo_cameras(root, CONFIG, placement=PLACEMENTS[name])
+    model = compile_scene(root)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)  # camera frames: mj_camlight
+    pos = {c: data.cam_xpos[model.camera(c).id] for c in (LEFT_CAMERA, RIGHT_CAMERA)}
+    axes = {c: -data.cam_xmat[model.camera(c).id].reshape(3, 3)[:, 2] for c in pos}  # MuJoCo looks along -z
+    assert np.linalg.norm(pos[RIGHT_CAMERA] - pos[LEFT_CAMERA]) == pytest.approx(0.20, abs=1e-9)
+    assert math.degrees(math.acos(axes[LEFT_CAMERA] @ axes[RIGHT_CAMERA])) == pytest.approx(30.0, abs=1e-6)
+    for c in pos:
+        to_target = np.asarray(TARGET_M) - pos[c]
+        assert axes[c] @ to_target / np.linalg.norm(to_target) == pytest.approx(1.0, abs=1e-9)
+        right = data.cam_xmat[model.camera(c).id].reshape(3, 3)[:, 0]
+        baseline = (pos[RIGHT_CAMERA] - pos[LEFT_CAMERA]) / 0.20
+        assert right @ baseline > 0.94  # within 20 deg: the baseline runs along the image rows
+
+
+def test_the_top_placement_is_the_rig_looking_straight_down():
+    poses = stereo_camera_poses(PLACEMENTS["top"])
+    height = 0.1 / math.tan(math.radians(15.0))
+    for name, side in ((LEFT_CAMERA, -1.0), (RIGHT_CAMERA, 1.0)):
+        expected = np.asarray(TARGET_M) + np.array([side * 0.1, 0.0, height])
+        np.testing.assert_allclose(poses[name][0], expected, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"baseline_m": 0.0}, "baseline_m"),
+        ({"vergence_deg": 180.0}, "vergence_deg"),
+        ({"elevation_deg": -45.0}, "elevation_deg"),
+        ({"target_m": (0.0, 0.0)}, "target_m"),
+    ],
+)
+def test_an_impossible_placement_is_a_one_line_error(kwargs, message):
+    with pytest.raises(ValueError, match=rf"^camera placement 'bad': {message}"):
+        CameraPlacement("bad", **kwargs)

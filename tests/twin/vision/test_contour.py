@@ -11,7 +11,7 @@ import pytest
 
 from experiments.sweep import TrajectoryController, draw_trajectories
 from twin.sim.backend import SimBackend
-from twin.sim.cameras import LEFT_CAMERA
+from twin.sim.cameras import LEFT_CAMERA, PLACEMENTS
 from twin.sim.foam import get_object
 from twin.vision.contour import (
     ContourError,
@@ -122,7 +122,7 @@ def test_the_hull_spans_every_piece_and_the_largest_piece_comes_first():
 
 def test_on_the_twin_the_contour_matches_the_true_silhouette_within_a_pixel():
     foam = get_object("sphere")
-    backend = SimBackend(foam, stereo=True)
+    backend = SimBackend(foam, stereo=True, stereo_placement=PLACEMENTS["top"])  # the shape model's view
     backend.connect()
     try:
         calibration = backend.stereo.calibration()
@@ -149,7 +149,13 @@ def test_under_the_fingers_the_likelihood_contour_is_steady_and_on_the_true_silh
     """The block squeezed by varied finger waves: every frame's contour against the true silhouette
     of that instant. The first version's pixel staircase is traced beside it, from the same frames."""
     (trajectory,) = draw_trajectories(["block"], 1, seed=0, duration_s=6.0, points=32)
-    backend = SimBackend(get_object("block"), seed=trajectory.seed, stereo=True, tactile=False)
+    backend = SimBackend(  # the top view: the one the shape model's contours are traced in
+        get_object("block"),
+        seed=trajectory.seed,
+        stereo=True,
+        tactile=False,
+        stereo_placement=PLACEMENTS["top"],
+    )
     backend.connect()
     errors = {"likelihood": [], "pixels": []}
     try:

@@ -264,3 +264,19 @@ def test_wrong_sizes_are_refused(first, rectifier):
         rectifier.rectify(first["left"][:, :200], first["right"])
     with pytest.raises(ValueError, match="mask shape"):
         reconstruct(first["left"], first["right"], rectifier, np.ones((10, 10), bool))
+
+
+def test_the_hand_region_keeps_the_grasp_and_drops_the_room():
+    from twin.vision.reconstruct import HandRegion
+
+    region = HandRegion(radius_m=0.15, z_min_m=0.06, z_max_m=0.35)
+    points = np.array(
+        [
+            [0.0, 0.0, 0.11],  # a held object's centre
+            [0.14, 0.0, 0.2],  # at the rim
+            [0.0, 0.16, 0.11],  # beside the hand
+            [0.0, 0.0, 0.05],  # below the palm's face (the mount, the bench)
+            [0.0, 0.0, 0.40],  # above the reach of the fingers
+        ]
+    )
+    np.testing.assert_array_equal(region.contains(points), [True, True, False, False, False])

@@ -104,7 +104,7 @@ def run_experiment(
     `shape_model` (twin.shape.model.ShapeModel) predicts the object's contour from every hand reading;
     with cameras the measured contour is recorded beside it.
     """
-    from twin.viz.rerun_log import RunRecording
+    from twin.viz.rerun_log import RunKind, RunRecording
 
     if not duration_s > 0:
         raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
@@ -139,7 +139,13 @@ def run_experiment(
             writer.update_metadata(
                 calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
             )
-            recording = RunRecording(rrd_path, recording_id=run_dir.name)
+            kind = RunKind(
+                experiment=str(experiment.get("name", "compress")),
+                sim=backend.scene() is not None,
+                stereo=stereo_pipeline is not None,
+                predict=shape_model is not None,
+            )
+            recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
             try:
                 scene_logger = _scene_logger(backend, recording)
                 if stereo_pipeline is not None:

@@ -1,22 +1,70 @@
-"""`twin view`: a run in the Rerun viewer."""
+"""`twin view`: a run in the Rerun viewer, with the blueprint of its kind of run."""
 
 from __future__ import annotations
 
 import argparse
+import getpass
 import os
 import shlex
 import shutil
+import socket
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 from twin.cli.common import fail
 from twin.validation import existing_dir
+
+WEB_VIEWER_PORT = 9090
+"""Rerun's web viewer (HTTP) port, its default."""
+GRPC_PORT = 9876
+"""Rerun's gRPC server port (the recordings), its default."""
+APPLICATION_ID = "barrett_twin"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Declare the command and its options."""
     p = sub.add_parser("view", help="open a run in the Rerun viewer")
     p.add_argument("run_dir", type=existing_dir(), metavar="DIR")
+
+
+def view_files(run_dir: Path, blueprint_path: Path) -> list[str]:
+    """The run's recording, its analyses (`twin identify` logs under the same recording id: the viewer
+    merges them) and a blueprint (.rbl) for the kind of run the directory holds, written to
+    blueprint_path."""
+    from twin.session import RRD_NAME
+    from twin.viz.blueprint import kind_of_run, run_blueprint
+    from twin.viz.rerun_log import read_rrd_blueprint
+
+    rrd = run_dir / RRD_NAME
+    eye = next(
+        (
+            c["EyeControls3D:look_target"][0]
+            for p, c in read_rrd_blueprint(rrd).items()
+            if p.endswith("/EyeControls3D") and "EyeControls3D:look_target" in c
+        ),
+        None,
+    )
+    run_blueprint(kind_of_run(run_dir, eye)).save(APPLICATION_ID, blueprint_path)
+    return [str(rrd), *sorted(str(p) for p in run_dir.glob("*/*.rrd")), str(blueprint_path)]
+
+
+def web_instructions(files: list[str]) -> list[str]:
+    """What to run without a display: the web viewer here, a tunnel from the user's machine."""
+    quoted = " ".join(shlex.quote(f) for f in files)
+    host = socket.gethostname() or "THIS_HOST"
+    return [
+        "No display here. Serve the recording to a browser from this machine:",
+        f"  {shlex.quote(sys.executable)} -m rerun --serve-web {quoted} "
+        f"--web-viewer-port {WEB_VIEWER_PORT} --port {GRPC_PORT}",
+        "then, on your own machine, forward both ports and open the viewer:",
+        f"  ssh -N -L {WEB_VIEWER_PORT}:localhost:{WEB_VIEWER_PORT} -L {GRPC_PORT}:localhost:{GRPC_PORT} "
+        f"{getpass.getuser()}@{host}",
+        f"  http://localhost:{WEB_VIEWER_PORT}/?url=rerun%2Bhttp://localhost:{GRPC_PORT}/proxy",
+        "(the address the command prints is the one to open if it differs). Or copy the run directory to a "
+        "machine with a display and run `twin view` there.",
+    ]
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -26,21 +74,25 @@ def cmd_view(args: argparse.Namespace) -> int:
     rrd = args.run_dir / RRD_NAME
     if not rrd.is_file():
         return fail(f"no Rerun recording at {rrd}")
-    # analyses of the run (`twin identify`) log under the same recording id: the viewer merges them
-    files = [str(rrd), *sorted(str(p) for p in args.run_dir.glob("*/*.rrd"))]
     has_display = (
         sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
     )
-    if not has_display:
-        quoted = " ".join(shlex.quote(f) for f in files)
-        print("No display here. Either copy the run directory to a machine with one and open it there:")
-        print(f"  twin view {shlex.quote(args.run_dir.name)}")
-        print("or serve the recording to a browser from here (then open the address it prints):")
-        print(f"  {shlex.quote(sys.executable)} -m rerun --serve-web {quoted}")
+    if not has_display:  # the blueprint file must outlive this process: next to the system's temp files
+        blueprint = Path(tempfile.gettempdir()) / f"twin-view-{args.run_dir.resolve().name}.rbl"
+        try:
+            files = view_files(args.run_dir, blueprint)
+        except Exception as exc:  # an unreadable .rrd: one line
+            return fail(f"cannot read {rrd}: {exc}")
+        print("\n".join(web_instructions(files)))
         return 0
-    viewer = shutil.which("rerun")
-    cmd = [viewer, *files] if viewer else [sys.executable, "-m", "rerun", *files]
-    return subprocess.call(cmd)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            files = view_files(args.run_dir, Path(tmp) / "blueprint.rbl")
+        except Exception as exc:
+            return fail(f"cannot read {rrd}: {exc}")
+        viewer = shutil.which("rerun")
+        cmd = [viewer, *files] if viewer else [sys.executable, "-m", "rerun", *files]
+        return subprocess.call(cmd)
 
 
 command = cmd_view

@@ -1,16 +1,20 @@
-"""Every Rerun call of the project: one recording per run, saved to an .rrd with a default blueprint.
+"""Every Rerun call of the project: one recording per run, saved to an .rrd with the blueprint of its
+kind of run (twin.viz.blueprint).
 
-The 3-D view shows the MuJoCo model (visual geoms on their bodies) and the deforming foam; time series
-show each finger's position, velocity, torque and force; a tab holds the tactile heatmaps and, once the
-stereo pair is set up, the camera images and the rectified depth.
+The 3-D view shows the MuJoCo model (visual geoms on their bodies, each finger's links in its fixed
+colour) and the deforming foam; time series show each finger's measured position against its command,
+velocity (rad/s), torque and force, and in sim runs the simulator's truth against what the sensors and
+the science say; the pads are images of filled cells (kPa), the procedure's phases go to the text log.
 
 Stereo (log_stereo_setup, log_stereo): everything the vision produces lives in the hand frame
 (HAND_ENTITY, "/world/hand", posed at the palm body's world pose so it sits on the hand model): the
-two cameras as pinholes with their images (JPEG), the rectified left camera with the depth from the
-disparity, the reconstructed cloud and mesh, the fused cloud and mesh and the tactile contact points.
-Measured: ~24 kB a frame for both 320x240 views at JPEG quality 85, ~6 kB the depth image, ~60 kB the
-~6000-point coloured cloud, ~45 kB the fused cloud and mesh; ~140 kB a stereo frame in all, ~250 MB
-for 60 s at 30 fps (raw images alone would be 450 kB a frame).
+two cameras as pinholes with their images (JPEG, 15 fps), the rectified left camera with the depth from
+the disparity (PNG, every frame), the reconstructed cloud and mesh and the fused cloud and mesh (10 Hz),
+and the tactile contact points.
+
+Size (`twin run compress --duration 6`, 12 s for the rate; the vision of commit d9b35e4): a camera run
+47 % of what it was (4.73 MB for 6 s, 37 MB a minute, from 10.0 MB and 80 MB); a run without cameras
+1.26 MB for 6 s, 7.8 MB a minute (from 0.95 MB and 6.7 MB: truth, observer and command are plotted now).
 
 Reading an .rrd back uses Rerun's own chunk reader (`rerun.chunk.RrdReader`): Rerun 0.41 has no
 `rerun.dataframe` module any more, and its DataFusion query API (`ChunkStore.reader`) needs the
@@ -21,12 +25,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+from datetime import timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:
@@ -36,38 +41,78 @@ if TYPE_CHECKING:
     from twin.vision.calibration import StereoCalibration
     from twin.vision.reconstruct import Reconstruction
 
-TIMELINE = "sim_time"
-PLOT_GROUPS = ("position_counts", "velocity_counts", "torque_nm", "force_kg")
-PLOT_STREAMS = ("hand",)
+from twin.viz.blueprint import (
+    CLOUD_ENTITY,
+    FINGER_RGB,
+    FUSED_CLOUD_ENTITY,
+    FUSED_MESH_ENTITY,
+    HAND_ENTITY,
+    LOG_ENTITY,
+    MESH_ENTITY,
+    RECTIFIED_ENTITY,
+    SERIES_STYLE,
+    STEREO_ENTITY,
+    TACTILE_ENTITY,
+    TACTILE_POINTS_ENTITY,
+    TIMELINE,
+    RunKind,
+    finger_colors,
+    finger_of,
+    plotted_paths,
+    run_blueprint,
+    series,
+)
+
+__all__ = [
+    "CLOUD_ENTITY",
+    "FUSED_CLOUD_ENTITY",
+    "FUSED_MESH_ENTITY",
+    "HAND_ENTITY",
+    "LOG_ENTITY",
+    "MESH_ENTITY",
+    "RECTIFIED_ENTITY",
+    "STEREO_ENTITY",
+    "TACTILE_ENTITY",
+    "TACTILE_POINTS_ENTITY",
+    "TIMELINE",
+    "RunKind",
+    "RunRecording",
+]
 FOAM_RGB = (240, 190, 100)  # pale yellow-orange
-SENSORS_ENTITY = "notes/sensors"
-TACTILE_ENTITY = "tactile"
 CONTACTS_ENTITY = "world/contacts"
-PRESSURE_FULL_SCALE_KPA = 150.0
-"""Top of the heatmap colour scale: about 2 kg on four 6 mm taxels."""
+PRESSURE_SCALES_KPA = (10.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0, 500.0)
+"""The tactile colour scale's top: the smallest of these above the 80th percentile of the loaded taxels'
+pressures (> 1 kPa) of any scan so far, so that the 7-13 N a pad carries in a squeeze spreads over the
+colours (a 6 s compress run: 50 kPa; its peaks, up to ~250 kPa on a few taxels, show as the top colour
+and read exactly on hover). A fixed 150 kPa left nearly every cell dark."""
+PRESSURE_SCALE_PERCENTILE = 80.0
+PRESSURE_COLORMAP = rr.components.Colormap.Viridis
 CONTACT_ARROW_M_PER_N = 0.004
-LOG_ENTITY = "log"
-HAND_ENTITY = "world/hand"
-"""The hand (palm body) frame: placed at the palm's world pose, identity without a sim scene."""
-STEREO_ENTITY = f"{HAND_ENTITY}/stereo"
 CAMERA_SIDES = ("left", "right")
-RECTIFIED_ENTITY = f"{STEREO_ENTITY}/rectified_left"
 CONTOUR_RGB = {"predicted": (230, 60, 200), "measured": (40, 220, 90)}
 """The shape network's contour in magenta, the camera's in green."""
-"""The rectified left camera: the disparity's view, logged as a depth image under its pinhole."""
-CLOUD_ENTITY = f"{STEREO_ENTITY}/cloud"
-MESH_ENTITY = f"{STEREO_ENTITY}/mesh"
-FUSED_CLOUD_ENTITY = f"{HAND_ENTITY}/fused/cloud"
-FUSED_MESH_ENTITY = f"{HAND_ENTITY}/fused/mesh"
-TACTILE_POINTS_ENTITY = f"{HAND_ENTITY}/tactile_contacts"
 JPEG_QUALITY = 85
 """Camera images are logged JPEG-compressed: ~10 KB a 320x240 view instead of 230 KB raw."""
 DEPTH_MM_PER_UNIT = 0.1
-"""Depth images are uint16 in units of 0.1 mm (0 = no depth), good to 6.5 m."""
+"""Depth images are uint16 in units of 0.1 mm (0 = no depth), good to 6.5 m, logged PNG-compressed."""
 CAMERA_PLANE_M = 0.05
 """Where the viewer draws each camera's image plane, in front of its centre."""
+IMAGE_PERIOD_S = 1 / 15
+"""Camera images go to the .rrd at 15 fps (every other frame of the 30 fps pair): at 9 kB a JPEG they
+were 60 % of a camera run's recording. Every frame stays in the run's stereo stream (left_jpeg,
+right_jpeg)."""
+PERIOD_SLACK_S = 0.01
+"""Frame times sit on the simulator's step grid (2 ms): two frames of a 30 fps pair may be 66 ms apart."""
+SURFACE_PERIOD_S = 0.1
+"""Clouds and meshes of the stereo reconstruction go to the .rrd at 10 Hz (images and depth at the
+camera's 30 fps): they were two thirds of a camera run's recording, and 10 updates a second follow a
+0.5 Hz squeeze smoothly."""
+MAX_EDGE_FACTOR = 4.0
+"""A triangle whose longest edge exceeds this many times the mesh's median edge joins points that are
+not neighbours on the surface (a finger's edge behind the foam): it is not drawn."""
 FUSED_RGB = (90, 170, 230)
 TACTILE_POINTS_RGB = (230, 50, 50)
+OTHER_PLOTS_VIEW = "other series"
 # mjtGeom values (stable across MuJoCo 3.x): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4,
 # cylinder 5, box 6, mesh 7, sdf 8. Height fields and SDFs are not drawn.
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 0, 2, 3, 4, 5, 6, 7
@@ -75,47 +120,6 @@ _DEFAULT_RGBA = np.array([0.5, 0.5, 0.5, 1.0], dtype=np.float32)  # MuJoCo's geo
 _SCALARS = rr.Scalars.descriptor_scalars().component
 # Entity path parts that Rerun takes verbatim (anything else it escapes or drops, with a warning).
 _UNSAFE = re.compile(r"[^\w.\-]")
-
-
-def default_blueprint(
-    plot_groups: Sequence[str] = PLOT_GROUPS, *, streams: Sequence[str] = PLOT_STREAMS, stereo: bool = False
-) -> rrb.Blueprint:
-    """3-D scene left, one time-series view per plot group right, a tab reserved for sensors.
-
-    The view of group g shows field g of every stream in `streams` ("/plots/<stream>/<g>"). Rerun's
-    entity filters only take `**` at the end of a path ("/plots/**/g" matches nothing), hence the
-    explicit streams; RunRecording re-sends the blueprint when a new stream is logged. With `stereo`,
-    the sensor tabs also show the left and right camera images and the rectified depth.
-    """
-    plots = [
-        rrb.TimeSeriesView(name=group, origin="/plots", contents=[f"/plots/{s}/{group}" for s in streams])
-        for group in plot_groups
-    ]
-    cameras = (
-        [rrb.Spatial2DView(name=f"{side} camera", origin=f"/{STEREO_ENTITY}/{side}") for side in CAMERA_SIDES]
-        + [rrb.Spatial2DView(name="rectified depth", origin=f"/{RECTIFIED_ENTITY}")]
-        if stereo
-        else []
-    )
-    sensors = rrb.Tabs(
-        rrb.Spatial2DView(name="tactile pads (kPa)", origin=f"/{TACTILE_ENTITY}"),
-        rrb.TimeSeriesView(name="pad forces, eq. 6 (N)", origin="/plots/tactile"),
-        *cameras,
-        rrb.TextDocumentView(name="cameras", origin=f"/{SENSORS_ENTITY}"),
-        rrb.TextLogView(name="log", origin=f"/{LOG_ENTITY}"),
-        name="Tactile & cameras",
-    )
-    return rrb.Blueprint(
-        rrb.TimePanel(state="collapsed", timeline=TIMELINE),  # sim time, not the wall clock's log_time
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial3DView(name="hand and foam", origin="/world"), sensors, row_shares=[3, 1]
-            ),
-            rrb.Vertical(*plots, name="time series"),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
 
 
 ROWS_PER_SEND = 60
@@ -191,27 +195,89 @@ def _bodies(paths: list[str]) -> Callable[[dict, list[int]], list[Columns]]:
     return split
 
 
-def _taxels(boxes: str, pads: list[tuple[str, np.ndarray]]) -> Callable[[dict, list[int]], list[Columns]]:
-    """Pending scans (162 pressures a row, kPa) as the heatmap colours of the 2-D boxes and of each pad's
-    taxels on the hand."""
+@dataclass(frozen=True)
+class _PadImage:
+    """Where one pad's taxels go in its tactile image (one pixel a cell) and where the image sits on the
+    2-D canvas (mm)."""
+
+    path: str
+    ids: np.ndarray
+    pixel: tuple[np.ndarray, np.ndarray]
+    shape: tuple[int, int]
+    corner_mm: tuple[float, float]
+    pitch_mm: float
+
+
+def _pad_images() -> list[_PadImage]:
+    """The pads' images, laid out as twin.tactile.layout.canvas_mm places their cells."""
+    from twin.tactile.layout import LAYOUT, canvas_mm
+
+    centers, _ = canvas_mm()
+    out = []
+    for k, pad in enumerate(LAYOUT.pads):
+        ids = np.flatnonzero(LAYOUT.pad_index == k)
+        c = centers[ids]
+        pitch = pad.pitch_m * 1e3
+        lo = c.min(axis=0)
+        col, row = np.rint((c - lo) / pitch).astype(int).T
+        shape = (int(row.max()) + 1, int(col.max()) + 1)
+        corner = (float(lo[0] - pitch / 2), float(lo[1] - pitch / 2))
+        out.append(_PadImage(f"{TACTILE_ENTITY}/{pad.name}", ids, (row, col), shape, corner, pitch))
+    return out
+
+
+TACTILE_KPA_PER_UNIT = 0.1
+"""The pads' images are uint16 in units of 0.1 kPa (meter = 10: the viewer's hover reads kPa)."""
+
+
+def _pad_pixels(pad: _PadImage, pressure_kpa: np.ndarray) -> np.ndarray:
+    """(rows, h*w*2) bytes of a pad's uint16 image (TACTILE_KPA_PER_UNIT; 0 where it has no cell) for
+    (rows, 162) pressures (kPa)."""
+    rows = len(pressure_kpa)
+    image = np.zeros((rows, *pad.shape), dtype=np.uint16)
+    units = np.clip(np.rint(pressure_kpa[:, pad.ids] / TACTILE_KPA_PER_UNIT), 0, 65535)
+    image[:, pad.pixel[0], pad.pixel[1]] = units
+    return image.reshape(rows, -1).view(np.uint8)
+
+
+def _image_format(pad: _PadImage) -> rr.components.ImageFormat:
+    return rr.components.ImageFormat(width=pad.shape[1], height=pad.shape[0], channel_datatype="U16")
+
+
+def _taxels(
+    pads: list[_PadImage], points: list[tuple[str, np.ndarray]], scale: Callable[[], float]
+) -> Callable[[dict, list[int]], list[Columns]]:
+    """Pending scans (162 pressures a row, kPa) as each pad's image (filled cells, coloured by the
+    viewer) and the colours of each pad's taxels on the hand (3-D)."""
 
     def split(stacked: dict, lengths: list[int]) -> list[Columns]:
         rows = len(lengths)
-        colors = _heat(stacked["pressure_kpa"] / PRESSURE_FULL_SCALE_KPA).reshape(rows, -1, 3)
-        out: list[Columns] = [(boxes, rr.Boxes2D, {"colors": colors.reshape(-1, 3)}, lengths)]
-        for path, ids in pads:
+        pressure = stacked["pressure_kpa"].reshape(rows, -1)
+        out: list[Columns] = []
+        for pad in pads:
+            buffers = list(_pad_pixels(pad, pressure))
+            out.append((pad.path, rr.DepthImage, {"buffer": buffers}, [1] * rows))  # format: static
+        colors = _heat((pressure / scale()).reshape(-1)).reshape(rows, -1, 3)
+        for path, ids in points:
             out.append((path, rr.Points3D, {"colors": colors[:, ids].reshape(-1, 3)}, [len(ids)] * rows))
         return out
 
     return split
 
 
+def _pressure_scale_kpa(pressure_kpa: np.ndarray) -> float:
+    """The colour scale's top for one scan's pressures (see PRESSURE_SCALES_KPA)."""
+    loaded = pressure_kpa[pressure_kpa > 1.0]
+    high = float(np.percentile(loaded, PRESSURE_SCALE_PERCENTILE)) if loaded.size else 0.0
+    return next((s for s in PRESSURE_SCALES_KPA if s >= high), PRESSURE_SCALES_KPA[-1])
+
+
 class RunRecording:
-    """One Rerun recording of a run, saved to an .rrd file, with the default blueprint.
+    """One Rerun recording of a run, saved to an .rrd file, with the blueprint of its kind of run.
 
     Time-varying entities of the 3-D scene, the pads and the plots are sent in columns of
     ROWS_PER_SEND rows; parts that do not change (a mesh's triangles and colour, the taxels' places,
-    the arrows' colour) go with an entity's first row only, and the viewer carries them forward."""
+    the series' names and colours) are logged once, static."""
 
     def __init__(
         self,
@@ -219,25 +285,25 @@ class RunRecording:
         *,
         application_id: str = "barrett_twin",
         recording_id: str | None = None,
-        plot_streams: Sequence[str] = PLOT_STREAMS,
+        kind: RunKind | None = None,
     ) -> None:
-        """Open the recording and its .rrd file; `plot_streams` are plotted from the start."""
+        """Open the recording and its .rrd file with the blueprint of `kind` (default: a sim compress run;
+        stereo and prediction are added when they are logged)."""
         self.rrd_path = Path(rrd_path)
-        self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        self._plot_streams = list(dict.fromkeys(plot_streams))
-        self.rec.save(self.rrd_path, default_blueprint=default_blueprint(streams=self._plot_streams))
-        self.rec.log(
-            SENSORS_ENTITY,
-            rr.TextDocument("Camera images appear here once the stereo pair is on the rig."),
-            static=True,
-        )
+        self.kind = kind or RunKind()
+        # Chunks of up to 2 s or 4 MB of what is logged row by row (images, clouds): fewer, larger chunks.
+        batcher = rr.ChunkBatcherConfig(flush_tick=timedelta(seconds=2), flush_num_bytes=4 << 20)
+        self.rec = rr.RecordingStream(application_id, recording_id=recording_id, batcher_config=batcher)
+        self.rec.save(self.rrd_path)  # the blueprint follows once the set-up is known (_send_blueprint)
+        self._blueprint_sent = False
+        self._plotted = plotted_paths(self.kind)
+        self._other_plots: list[str] = []
         self._series_named: set[str] = set()
         self._flex: list[tuple[str, int, int, int, np.ndarray]] = []
         self._bodies: list[tuple[int, str]] = []
         self._welded: list[tuple[int, str]] = []
         self._closed = False
         self._body_paths: dict[str, str] = {}
-        self._stereo = False
         self._depth_from_disparity: tuple[float, float, float] | None = None
         self._pending: dict[str, _Pending] = {}
         self._started: set[str] = set()
@@ -249,15 +315,37 @@ class RunRecording:
         """The time last given to Rerun's set_time (only logs made now, not pending rows, need it)."""
         self._t_ns = 0
         self._tactile_pads: list[tuple[str, np.ndarray]] = []
+        self._pressure_scale_kpa = 0.0
+        self._phase: str | None = None
+        self._observer: object | None = None
+        self._last_surface_s: float | None = None
+        self._last_image_s: float | None = None
+
+    def _set_kind(self, **changes: object) -> None:
+        """The run turned out richer (cameras, a prediction, the foam's place): re-send its blueprint."""
+        kind = replace(self.kind, **changes)
+        if kind != self.kind:
+            self.kind = kind
+            self._plotted = plotted_paths(kind)
+            if self._blueprint_sent:
+                self._send_blueprint()
 
     def _send_blueprint(self) -> None:
-        self.rec.send_blueprint(default_blueprint(streams=self._plot_streams, stereo=self._stereo))
+        """The blueprint, first when time-varying data starts (or at close), after the set-up (model,
+        cameras) has framed it: each one sent costs ~0.1 MB of the .rrd."""
+        self._blueprint_sent = True
+        blueprint = run_blueprint(self.kind)
+        if self._other_plots:  # series no view of the run's kind knows: shown, not lost
+            blueprint = run_blueprint(self.kind, extra=self._other_plots)
+        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
 
     def _open(self, t_s: float | None, *, pending_only: bool = False) -> None:
         """Check the recording is open and make t_s the current time. `pending_only`: the caller only
         keeps rows pending (or calls _sync_time before logging now), so Rerun's time is set lazily."""
         if self._closed:
             raise RuntimeError(f"recording {self.rrd_path} is closed")
+        if t_s is not None and not self._blueprint_sent:
+            self._send_blueprint()
         if t_s is not None and float(t_s) != self._time_s:
             self._time_s = float(t_s)
             self._t_ns = round(1e9 * self._time_s)  # as Rerun's set_time rounds it
@@ -304,7 +392,11 @@ class RunRecording:
             rgba = _geom_rgba(model, g)
             if model.geom_group[g] >= 3 or model.geom_type[g] == _PLANE or rgba[3] == 0:
                 continue
-            shape = _geom_archetype(model, g, (rgba * 255).round().astype(np.uint8))
+            color = (rgba * 255).round().astype(np.uint8)
+            finger = finger_of(bodies[body])
+            if finger is not None:  # a finger's links in its fixed colour, as in every plot
+                color[:3] = FINGER_RGB[finger]
+            shape = _geom_archetype(model, g, color)
             if shape is None:
                 continue
             path = f"world/bodies/{bodies[body]}/{geoms[g]}"
@@ -321,6 +413,16 @@ class RunRecording:
             (self._welded if fixed else self._bodies).append((b, f"world/bodies/{bodies[b]}"))
             self._body_paths[bodies[b]] = f"world/bodies/{bodies[b]}"
         self._body_ids = np.array([b for b, _ in self._bodies], dtype=int)
+        if model.nflex:  # frame the 3-D view on the foam where the model puts it (its place at rest)
+            import mujoco
+
+            rest = mujoco.MjData(model)
+            mujoco.mj_forward(model, rest)
+            if rest.flexvert_xpos.size:
+                f = next((i for i in range(model.nflex) if _name(model, "flex", i) == "foam"), 0)
+                adr, num = int(model.flex_vertadr[f]), int(model.flex_vertnum[f])
+                centre = rest.flexvert_xpos[adr : adr + num].mean(axis=0)
+                self._set_kind(eye_target_m=tuple(float(x) for x in centre))
         for f, name in enumerate(_unique([_name(model, "flex", f) for f in range(model.nflex)])):
             self._flex.append(
                 (
@@ -350,37 +452,46 @@ class RunRecording:
                 self._sync_time()
                 self.rec.log(path, rr.LineStrips3D(verts[faces], colors=[FOAM_RGB]))
             elif self._first(path):
-                self._sync_time()
-                normals = _vertex_normals(verts, faces)
-                mesh = rr.Mesh3D(
-                    vertex_positions=verts,
-                    triangle_indices=faces,
-                    vertex_normals=normals,
-                    albedo_factor=[*FOAM_RGB, 255],
-                )
-                self.rec.log(path, mesh)
+                # triangles and colour once, static; the vertices (and normals) every frame
+                mesh = rr.Mesh3D.from_fields(triangle_indices=faces, albedo_factor=[*FOAM_RGB, 255])
+                self.rec.log(path, mesh, static=True)
+                self._buffer(path, {"vertex_positions": verts}, lambda p=path, f=faces: _mesh(p, f))
             else:
                 self._buffer(path, {"vertex_positions": verts}, lambda p=path, f=faces: _mesh(p, f))
 
     def log_tactile(self, t_s: float, pressure_kpa: ArrayLike, pad_force_n: ArrayLike) -> None:
-        """Pads as heatmaps in their layout (2-D), taxels coloured on the hand (3-D), eq. 6 forces."""
+        """Pads as images of filled cells in their layout (2-D, kPa on hover, viridis over a scale that
+        follows the run's pressures), taxels coloured on the hand (3-D), eq. 6 forces (and the
+        fingertips' beside the simulator's true contact force)."""
         from twin.tactile.layout import LAYOUT
 
         self._open(t_s, pending_only=True)
         pressure = np.array(pressure_kpa, dtype=float)  # a copy: the row may wait to be sent
-        boxes = f"{TACTILE_ENTITY}/taxels"
-        if self._first(boxes):  # places, sizes and names once; then the colours only
-            from twin.tactile.layout import canvas_mm
-
-            self._sync_time()
-            centers, half = canvas_mm()
+        if self._first(TACTILE_ENTITY):  # layout, names and the taxels' places once, static
+            self._pad_images = _pad_images()
+            labels = [_pad_label(p.path.rsplit("/", 1)[1]) for p in self._pad_images]
+            corners = np.array([p.corner_mm for p in self._pad_images])
             self.rec.log(
                 f"{TACTILE_ENTITY}/names",
-                rr.Points2D(_pad_label_positions(), labels=list(LAYOUT.pad_names), radii=0.1),
+                rr.Points2D(
+                    corners - np.array([0.0, 14.0]), labels=labels, radii=0.1, colors=finger_colors(labels)
+                ),
                 static=True,
             )
-            colors = _heat(pressure / PRESSURE_FULL_SCALE_KPA)
-            self.rec.log(boxes, rr.Boxes2D(centers=centers, half_sizes=half, colors=colors))
+            for pad in self._pad_images:
+                self.rec.log(
+                    pad.path,
+                    rr.Transform3D(
+                        translation=[*pad.corner_mm, 0.0], scale=[pad.pitch_mm, pad.pitch_mm, 1.0]
+                    ),
+                    rr.DepthImage.from_fields(
+                        format=_image_format(pad),
+                        meter=1.0 / TACTILE_KPA_PER_UNIT,
+                        colormap=PRESSURE_COLORMAP,
+                        magnification_filter="Nearest",
+                    ),
+                    static=True,
+                )
             for pad_index, pad in enumerate(LAYOUT.pads):
                 body_path = self._body_paths.get(pad.body)
                 if body_path is None:
@@ -388,14 +499,81 @@ class RunRecording:
                 ids = np.flatnonzero(LAYOUT.pad_index == pad_index)
                 path = f"{body_path}/taxels_{pad.name}"
                 self._tactile_pads.append((path, ids))
-                self.rec.log(
-                    path, rr.Points3D(LAYOUT.position_m[ids], colors=colors[ids], radii=pad.pitch_m * 0.4)
-                )
-        else:
-            self._buffer(boxes, {"pressure_kpa": pressure}, lambda: _taxels(boxes, self._tactile_pads))
-        self.log_scalars(
-            "tactile", t_s, {"pad_force_n": pad_force_n}, labels={"pad_force_n": LAYOUT.pad_names}
+                self.rec.log(path, rr.Points3D(LAYOUT.position_m[ids], radii=pad.pitch_m * 0.4), static=True)
+        scale = max(self._pressure_scale_kpa, _pressure_scale_kpa(pressure))
+        if scale > self._pressure_scale_kpa:
+            self._set_pressure_scale(t_s, scale)
+        self._buffer(
+            TACTILE_ENTITY,
+            {"pressure_kpa": pressure[None]},
+            lambda: _taxels(self._pad_images, self._tactile_pads, lambda: self._pressure_scale_kpa),
         )
+        forces = np.asarray(pad_force_n, dtype=float)
+        tips = [LAYOUT.pad_names.index(f"f{k}_tip") for k in (1, 2, 3)]
+        self.log_scalars(
+            "tactile",
+            t_s,
+            {"pad_force_n": forces, "tip_force_n": forces[tips]},
+            labels={"pad_force_n": LAYOUT.pad_names},
+        )
+
+    def _set_pressure_scale(self, t_s: float, scale_kpa: float) -> None:
+        """The tactile colour scale's top (kPa): on every pad (static: one scale for the whole run, the
+        largest it needed), written on the canvas and in the log."""
+        self._pressure_scale_kpa = scale_kpa
+        for pad in self._pad_images:
+            self.rec.log(
+                pad.path,
+                rr.DepthImage.from_fields(depth_range=[0.0, scale_kpa / TACTILE_KPA_PER_UNIT]),
+                static=True,
+            )
+        palm = self._pad_images[-1]  # beside the palm, right of it
+        right = palm.corner_mm[0] + palm.pitch_mm * palm.shape[1]
+        where = [[right + 80.0, palm.corner_mm[1] + palm.pitch_mm * palm.shape[0] / 2]]
+        text = f"0-{scale_kpa:g} kPa (yellow: {scale_kpa:g}+)"
+        self.rec.log(f"{TACTILE_ENTITY}/scale", rr.Points2D(where, labels=[text], radii=0.1), static=True)
+        self.log_text(t_s, f"tactile colour scale: 0-{scale_kpa:g} kPa")
+
+    def log_hand(
+        self,
+        t_s: float,
+        position_counts: ArrayLike,
+        strain_counts: ArrayLike,
+        physical: Mapping[str, ArrayLike],
+    ) -> None:
+        """One hand reading: measured position (counts), velocity (rad/s), torque (N m), force (kg) of
+        F1-F3, and in sim runs the clutch observer's joint angles (to set beside the truth)."""
+        from twin.interface.devices import FINGER_LABELS
+
+        counts = np.asarray(position_counts, dtype=float)
+        values = {
+            "position_counts": counts[:3],
+            "velocity_rad_s": np.asarray(physical["velocity_rad_s"], dtype=float)[:3],
+            "torque_nm": physical["torque_nm"],
+            "force_kg": physical["force_kg"],
+        }
+        self.log_scalars("hand", t_s, values, labels=dict.fromkeys(values, FINGER_LABELS))
+        if self.kind.sim:
+            from twin.kinematics import ClutchObserver
+
+            if self._observer is None:
+                self._observer = ClutchObserver()
+            links = self._observer.update(counts, strain_counts)
+            self.log_scalars("observer", t_s, {"inner_rad": links[:, 0], "outer_rad": links[:, 1]})
+
+    def log_command(self, t_s: float, position_counts: ArrayLike, phase: str) -> None:
+        """A command as applied (F1-F3 set points, counts); a change of the procedure's phase goes to
+        the log."""
+        self.log_scalars("command", t_s, {"position_counts": np.asarray(position_counts, dtype=float)[:3]})
+        if phase != self._phase:
+            self._phase = phase
+            self.log_text(t_s, f"phase: {phase}")
+
+    def log_truth(self, t_s: float, truth: Mapping[str, ArrayLike]) -> None:
+        """What only the simulator knows, beside what the sensors say: the fingertips' true contact
+        force (N) and the true inner and outer joint angles (rad)."""
+        keep = ("tip_contact_force_n", "inner_rad", "outer_rad")
+        self.log_scalars("truth", t_s, {k: truth[k] for k in keep if k in truth})
 
     def log_contacts(self, t_s: float, points_m: ArrayLike, forces_n: ArrayLike) -> None:
         """Contact points and their normal forces as arrows in the 3-D scene (pointing into the pad)."""
@@ -419,24 +597,37 @@ class RunRecording:
     ) -> None:
         """One time-series row: entity plots/<stream>/<field>, one series per element of an array field.
 
-        labels[field] names the series of a field (set once, statically); its length must match.
+        labels[field] names the series of a field (set once, statically); its length must match. The
+        series of the blueprint's plots get their fixed names and colours (twin.viz.blueprint), others
+        their labels and each finger's colour; an entity no view names gets an "other series" view.
         """
         self._open(t_s, pending_only=True)
-        if stream not in self._plot_streams:
-            self._plot_streams.append(stream)
-            self._send_blueprint()
         for field, value in values.items():
             path = f"plots/{stream}/{field}"
             arr = np.array(value, dtype=np.float64, ndmin=1)  # a copy: the row may wait to be sent
             if arr.ndim != 1:
                 raise ValueError(f"{path}: a time series takes a scalar or a 1-D array, got {arr.shape}")
-            if path not in self._series_named and labels and field in labels:
-                names = [str(n) for n in labels[field]]
-                if len(names) != arr.size:
-                    raise ValueError(f"{path}: {len(names)} labels for {arr.size} values")
-                self.rec.log(path, rr.SeriesLines(names=names), static=True)
-                self._series_named.add(path)
+            if path not in self._series_named:
+                self._name_series(path, field, arr.size, labels)
             self._buffer(path, {"scalars": arr}, lambda p=path: _as_is(p, rr.Scalars))
+
+    def _name_series(
+        self, path: str, field: str, size: int, labels: Mapping[str, Sequence[str]] | None
+    ) -> None:
+        """Names and colours of an entity's series, logged once (static), and its place in a view."""
+        if labels and field in labels:
+            names = [str(n) for n in labels[field]]
+            if len(names) != size:
+                raise ValueError(f"{path}: {len(names)} labels for {size} values")
+        self._series_named.add(path)
+        style = SERIES_STYLE.get(f"/{path}")
+        if style is not None and len(style[0]) == size:
+            self.rec.log(path, series(style[0], light=style[1], width=style[2]), static=True)
+        elif labels and field in labels:
+            self.rec.log(path, rr.SeriesLines(names=names, colors=finger_colors(names)), static=True)
+        if f"/{path}" not in self._plotted and f"/{path}" not in self._other_plots:
+            self._other_plots.append(f"/{path}")
+            self._send_blueprint()
 
     def log_text(self, t_s: float, text: str, level: str = "INFO") -> None:
         """A line in the run's text log (entity "log")."""
@@ -484,9 +675,7 @@ class RunRecording:
         )
         q = rectifier.Q  # Z = Q[2,3] / (Q[3,2] d + Q[3,3]) in the rectified left frame
         self._depth_from_disparity = (float(q[2, 3]), float(q[3, 2]), float(q[3, 3]))
-        if not self._stereo:
-            self._stereo = True
-            self._send_blueprint()
+        self._set_kind(stereo=True)
 
     def log_stereo(
         self,
@@ -514,19 +703,33 @@ class RunRecording:
         what is not given, so a viewer keeps showing the last one.
         """
         self._open(t_s)
-        for side, image in (("left", left), ("right", right)):
-            self.rec.log(f"{STEREO_ENTITY}/{side}/image", _image(image, jpeg_quality))
+        if self._last_image_s is None or t_s - self._last_image_s >= IMAGE_PERIOD_S - PERIOD_SLACK_S:
+            self._last_image_s = float(t_s)
+            for side, image in (("left", left), ("right", right)):
+                self.rec.log(f"{STEREO_ENTITY}/{side}/image", _image(image, jpeg_quality))
+        if reconstruction is not None and self._depth_from_disparity is not None:
+            r = reconstruction
+            depth = _depth_units(r.disparity, r.mask, *self._depth_from_disparity)
+            self.rec.log(f"{RECTIFIED_ENTITY}/depth", _png_depth(depth))
+        if tactile_points_hand is not None:
+            tactile = np.asarray(tactile_points_hand, dtype=np.float32).reshape(-1, 3)
+            self.rec.log(
+                TACTILE_POINTS_ENTITY, rr.Points3D(tactile, colors=[TACTILE_POINTS_RGB], radii=0.0015)
+            )
+        if (
+            self._last_surface_s is not None
+            and t_s - self._last_surface_s < SURFACE_PERIOD_S - PERIOD_SLACK_S
+        ):
+            return  # the 3-D surfaces at SURFACE_PERIOD_S only (the run's stereo stream keeps them all)
+        self._last_surface_s = float(t_s)
         if reconstruction is not None:
             r = reconstruction
-            if self._depth_from_disparity is not None:
-                depth = _depth_units(r.disparity, r.mask, *self._depth_from_disparity)
-                self.rec.log(f"{RECTIFIED_ENTITY}/depth", rr.DepthImage(depth, meter=1e3 / DEPTH_MM_PER_UNIT))
             points = np.asarray(r.points_hand, dtype=np.float32).reshape(-1, 3)
             colors = np.asarray(r.colors, dtype=np.uint8).reshape(-1, 3)
             pixels = np.asarray(r.pixels).reshape(-1, 2)
             on_grid = ((pixels % cloud_stride) == 0).all(axis=1)  # the depth image keeps every point
             self.rec.log(CLOUD_ENTITY, rr.Points3D(points[on_grid], colors=colors[on_grid], radii=0.0006))
-            used, faces = _compact_mesh(np.asarray(r.triangles).reshape(-1, 3))
+            used, faces = _compact_mesh(_short_triangles(points, np.asarray(r.triangles).reshape(-1, 3)))
             self.rec.log(
                 MESH_ENTITY,
                 rr.Mesh3D(vertex_positions=points[used], triangle_indices=faces, vertex_colors=colors[used]),
@@ -535,7 +738,9 @@ class RunRecording:
             fused = np.asarray(fused_points_hand, dtype=np.float32).reshape(-1, 3)
             self.rec.log(FUSED_CLOUD_ENTITY, rr.Points3D(fused, colors=[FUSED_RGB], radii=0.0006))
             if fused_triangles is not None:
-                used, faces = _compact_mesh(np.asarray(fused_triangles).reshape(-1, 3))
+                used, faces = _compact_mesh(
+                    _short_triangles(fused, np.asarray(fused_triangles).reshape(-1, 3))
+                )
                 verts = fused[used]
                 self.rec.log(
                     FUSED_MESH_ENTITY,
@@ -546,16 +751,13 @@ class RunRecording:
                         albedo_factor=[*FUSED_RGB, 255],
                     ),
                 )
-        if tactile_points_hand is not None:
-            tactile = np.asarray(tactile_points_hand, dtype=np.float32).reshape(-1, 3)
-            self.rec.log(
-                TACTILE_POINTS_ENTITY, rr.Points3D(tactile, colors=[TACTILE_POINTS_RGB], radii=0.0015)
-            )
 
     def log_contour(self, t_s: float, kind: str, contour_px: ArrayLike) -> None:
         """A contour ("predicted" or "measured") as a closed line over the rectified left camera's image
         space (where the depth image lives), so both show together on the camera's 2-D view."""
         self._open(t_s)
+        if kind == "predicted":
+            self._set_kind(predict=True)
         pts = np.asarray(contour_px, dtype=np.float32).reshape(-1, 2)
         strip = np.vstack([pts, pts[:1]])
         self.rec.log(
@@ -565,6 +767,8 @@ class RunRecording:
     def close(self) -> None:
         """Flush and finish the .rrd; safe to call twice."""
         if not self._closed:
+            if not self._blueprint_sent:
+                self._send_blueprint()
             self._closed = True
             try:
                 for pending in self._pending.values():
@@ -580,23 +784,22 @@ class RunRecording:
         self.close()
 
 
-_HEAT_STOPS = np.array([[40, 30, 90], [40, 110, 180], [60, 180, 120], [240, 210, 60], [250, 250, 230]], float)
+_HEAT_STOPS = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], float)
+"""Viridis at 0, 1/4, 1/2, 3/4 and 1: the taxels on the hand (3-D) in the pads' (2-D) colour map."""
 
 
 def _heat(x: ArrayLike) -> np.ndarray:
-    """Colours of values in [0, 1] on a dark-blue -> yellow scale (out-of-range values clipped)."""
+    """Colours of values in [0, 1] on viridis, linearly between its stops (out-of-range values clipped)."""
     x = np.clip(np.nan_to_num(np.asarray(x, dtype=float)), 0.0, 1.0) * (len(_HEAT_STOPS) - 1)
     lo = np.minimum(x.astype(int), len(_HEAT_STOPS) - 2)
     frac = (x - lo)[:, None]
     return ((1 - frac) * _HEAT_STOPS[lo] + frac * _HEAT_STOPS[lo + 1]).astype(np.uint8)
 
 
-def _pad_label_positions() -> np.ndarray:
-    """Where each pad's name sits on the 2-D canvas (above its first cell)."""
-    from twin.tactile.layout import LAYOUT, canvas_mm
-
-    centers, _ = canvas_mm()
-    return np.array([centers[LAYOUT.pad_index == k].min(axis=0) - (0, 6) for k in range(len(LAYOUT.pads))])
+def _pad_label(pad: str) -> str:
+    """A pad's short name on the canvas: "F1 tip", "F2 inner", "palm"."""
+    finger = finger_of(pad)
+    return f"{finger} {pad.split('_', 1)[1]}" if finger else pad
 
 
 def _name(model: mujoco.MjModel, kind: str, i: int) -> str:
@@ -690,10 +893,24 @@ def _image(rgb: np.ndarray, jpeg_quality: int | None) -> rr.Image | rr.EncodedIm
     import cv2
 
     bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
-    ok, jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+    ok, jpeg = cv2.imencode(
+        ".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality), cv2.IMWRITE_JPEG_OPTIMIZE, 1]
+    )
     if not ok:
         raise ValueError(f"could not JPEG-encode an image of shape {image.shape}")
     return rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg")
+
+
+def _png_depth(depth_units: np.ndarray) -> rr.EncodedDepthImage:
+    """A uint16 depth image (DEPTH_MM_PER_UNIT) PNG-compressed: mostly zeros outside the object's mask,
+    it shrinks ~20-fold (a raw 320x240 depth image is 154 kB)."""
+    import cv2
+
+    image = np.ascontiguousarray(depth_units, dtype=np.uint16)
+    ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    if not ok:
+        raise ValueError(f"could not PNG-encode a depth image of shape {depth_units.shape}")
+    return rr.EncodedDepthImage(png.tobytes(), media_type="image/png", meter=1e3 / DEPTH_MM_PER_UNIT)
 
 
 def _depth_units(disparity: np.ndarray, mask: np.ndarray, q23: float, q32: float, q33: float) -> np.ndarray:
@@ -704,6 +921,16 @@ def _depth_units(disparity: np.ndarray, mask: np.ndarray, q23: float, q32: float
     units = z_mm / DEPTH_MM_PER_UNIT
     ok = np.asarray(mask, dtype=bool) & np.isfinite(units) & (units > 0) & (units < 65535)
     return np.where(ok, np.rint(units), 0).astype(np.uint16)
+
+
+def _short_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The triangles whose longest edge is at most MAX_EDGE_FACTOR times the median edge."""
+    if len(triangles) == 0:
+        return triangles
+    corners = np.asarray(points, dtype=np.float64)[triangles]  # (t, 3, 3)
+    edges = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)  # (t, 3)
+    longest = edges.max(axis=1)
+    return triangles[longest <= MAX_EDGE_FACTOR * np.median(edges)]
 
 
 def _compact_mesh(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -840,6 +1067,27 @@ def read_rrd_views(rrd_path: Path | str) -> dict[str, dict[str, object]]:
     }
 
 
+def read_rrd_blueprint(rrd_path: Path | str) -> dict[str, dict[str, object]]:
+    """Blueprint entity ("/view/<id>/EyeControls3D", ".../ViewContents/overrides/<entity>/visualizers/<id>")
+    -> {column ("EyeControls3D:look_target"): its last value} of the last blueprint in an .rrd."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(Path(rrd_path))
+    chunks = [list(reader.stream(store=store)) for store in reader.blueprints()]
+    if not chunks:
+        return {}
+    newest = max(chunks, key=lambda cs: max((int(c.id.removeprefix("chunk_"), 16) for c in cs), default=0))
+    out: dict[str, dict[str, object]] = {}
+    for chunk in newest:
+        batch = chunk.to_record_batch()
+        for column in batch.schema.names:
+            if ":" in column:
+                values = [v for v in batch.column(column).to_pylist() if v is not None]
+                if values:
+                    out.setdefault(chunk.entity_path, {})[column] = values[-1]
+    return out
+
+
 def _rows(
     rrd_path: Path | str,
     entity_path: str,
@@ -875,9 +1123,10 @@ def _rows(
         return rows
     latest: dict[str, object] = dict.fromkeys(columns)
     out = []
+    timed = any(t is not None for t, _ in rows)
     for t, cells in rows:
         latest.update({c: v for c, v in cells.items() if v is not None})
-        if latest[columns[0]] is not None:
+        if latest[columns[0]] is not None and (t is not None or not timed):  # static parts join later rows
             out.append((t, dict(latest)))
     return out
 
@@ -945,8 +1194,13 @@ def _decode(buffer: object, fmt: dict) -> np.ndarray:
 
 def read_rrd_images(rrd_path: Path | str, entity_path: str) -> list[tuple[float | None, np.ndarray]]:
     """(time s, image) of each image row of an entity, in time order: rr.EncodedImage rows decoded
-    (RGB uint8 for colour JPEG/PNG), rr.Image rows as logged, rr.DepthImage rows in metres (0 = none)."""
+    (RGB uint8 for colour JPEG/PNG), rr.Image rows as logged, rr.DepthImage and rr.EncodedDepthImage
+    rows in metres (0 = none)."""
     encoded = [rr.EncodedImage.descriptor_blob().component]
+    encoded_depth = [
+        rr.EncodedDepthImage.descriptor_blob().component,
+        rr.EncodedDepthImage.descriptor_meter().component,
+    ]
     raw = [rr.Image.descriptor_buffer().component, rr.Image.descriptor_format().component]
     depth = [
         rr.DepthImage.descriptor_buffer().component,
@@ -960,9 +1214,13 @@ def read_rrd_images(rrd_path: Path | str, entity_path: str) -> list[tuple[float 
         blob = np.asarray(cells[encoded[0]][0], dtype=np.uint8)
         image = cv2.imdecode(blob, cv2.IMREAD_UNCHANGED)
         out.append((t, cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image))
+    for t, cells in _rows(rrd_path, entity_path, encoded_depth):
+        image = cv2.imdecode(np.asarray(cells[encoded_depth[0]][0], dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+        meter = cells[encoded_depth[1]][0] if cells[encoded_depth[1]] else 1.0
+        out.append((t, image.astype(np.float64) / float(meter)))
     for t, cells in _rows(rrd_path, entity_path, raw):
         out.append((t, _decode(cells[raw[0]][0], cells[raw[1]][0])))
-    for t, cells in _rows(rrd_path, entity_path, depth):
+    for t, cells in _rows(rrd_path, entity_path, depth, latest_at=True):  # format, meter: maybe static
         meter = cells[depth[2]][0] if cells[depth[2]] else 1.0
         out.append((t, _decode(cells[depth[0]][0], cells[depth[1]][0]).astype(np.float64) / float(meter)))
     out.sort(key=lambda r: -np.inf if r[0] is None else r[0])

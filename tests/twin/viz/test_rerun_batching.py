@@ -10,8 +10,10 @@ from twin.tactile.layout import LAYOUT
 from twin.viz.rerun_log import (
     CONTACTS_ENTITY,
     ROWS_PER_SEND,
+    TACTILE_KPA_PER_UNIT,
     RunRecording,
     read_rrd_entities,
+    read_rrd_images,
     read_rrd_meshes,
     read_rrd_points,
     read_rrd_scalars,
@@ -27,7 +29,7 @@ def logged(tmp_path_factory):
     model, data = backend.scene()  # the MuJoCo hand with its pads' bodies
     path = tmp_path_factory.mktemp("rrd") / "run.rrd"
     rng = np.random.default_rng(0)
-    kept = {"t": [], "foam": [], "pad_force": []}
+    kept = {"t": [], "foam": [], "pad_force": [], "pressure": []}
     with RunRecording(path, recording_id="batching") as rec:
         rec.log_model(model)
         for i in range(FRAMES):
@@ -36,6 +38,7 @@ def logged(tmp_path_factory):
             pad_force = rng.uniform(0, 5, len(LAYOUT.pads))
             points = rng.uniform(-0.05, 0.05, (i % 4, 3))  # 0 to 3 contacts: ragged rows
             rec.log_tactile(data.time, pressure, pad_force)
+            kept["pressure"].append(pressure.copy())
             rec.log_scene(data.time, data)
             rec.log_contacts(data.time, points, np.ones_like(points))
             pressure[:] = -1.0  # the caller's arrays may change once logged
@@ -65,7 +68,8 @@ def test_bodies_pads_and_contacts_have_a_row_a_frame(logged):
     assert entities["/world/bodies/palm"] == 1  # welded to the world: posed once
     for body in ("f1_outer", "f2_inner", "f3_inner"):
         assert entities[f"/world/bodies/{body}"] == FRAMES
-    assert entities["/tactile/taxels"] == FRAMES
+    for pad in LAYOUT.pad_names:  # layout, colour map and scale static, an image a scan
+        assert entities[f"/tactile/{pad}"] == FRAMES + 2  # + static: layout and colour map; scale
     assert entities[f"/{CONTACTS_ENTITY}"] == FRAMES
     taxels = read_rrd_points(path, "/world/bodies/palm/taxels_palm")
     assert len(taxels) == FRAMES
@@ -81,3 +85,24 @@ def test_plotted_pad_forces_read_back_as_logged(logged):
     times, forces = read_rrd_scalars(path, "/plots/tactile/pad_force_n")
     np.testing.assert_allclose(times, kept["t"], atol=1e-9)
     np.testing.assert_allclose(forces, kept["pad_force"])
+
+
+def test_pads_are_images_of_filled_cells_in_kpa(logged):
+    """Each pad an image, one pixel a taxel in its grid place as the layout draws it (a finger's first
+    row at the bottom, the palm's at the top), its value (on hover) in kPa to 0.1 kPa."""
+    path, kept = logged
+    for pad in ("palm", "f2_tip"):
+        ids = LAYOUT.taxels_of(pad)
+        row, col = LAYOUT.row_col[ids].T
+        n_rows = row.max() + 1
+        if pad != "palm":
+            row = n_rows - 1 - row
+        images = read_rrd_images(path, f"/tactile/{pad}")
+        assert len(images) == FRAMES
+        for (t, image), t_kept, pressure in zip(images, kept["t"], kept["pressure"], strict=True):
+            assert t == pytest.approx(t_kept)
+            assert image.shape == (n_rows, col.max() + 1)
+            np.testing.assert_allclose(image[row, col], pressure[ids], atol=TACTILE_KPA_PER_UNIT / 2 + 1e-9)
+            left_out = np.ones(image.shape, bool)
+            left_out[row, col] = False
+            assert (image[left_out] == 0).all()

@@ -5,9 +5,7 @@ import numpy as np
 import pytest
 
 from twin.viz.rerun_log import (
-    PLOT_GROUPS,
     RunRecording,
-    default_blueprint,
     read_rrd_entities,
     read_rrd_meshes,
     read_rrd_scalars,
@@ -86,7 +84,7 @@ def test_scene_body_poses_and_foam_mesh_every_step(run):
     entities = read_rrd_entities(path)
     assert entities["/world/bodies/arm"] == STEPS
     assert entities["/world/bodies/pusher"] == STEPS  # mocap: no joint, yet it moves
-    assert entities["/world/flex/foam"] == STEPS
+    assert entities["/world/flex/foam"] == STEPS + 1  # the triangles and colour once, static
     meshes = read_rrd_meshes(path, "/world/flex/foam")
     assert len(meshes) == STEPS
     verts, faces, normals = meshes[-1]
@@ -125,21 +123,14 @@ def test_scalars_read_back_as_logged(run):
         read_rrd_scalars(path, "/plots/hand/phase", timeline="wall_time")
 
 
-def test_blueprint_views_and_new_streams_join_the_plots(tmp_path):
-    assert default_blueprint(("torque_nm",), streams=("hand", "command")) is not None
+def test_series_no_view_names_get_a_view_of_their_own(tmp_path):
     path = tmp_path / "bp.rrd"
     with RunRecording(path) as rec:
         rec.log_scalars("hand", 0.0, {"torque_nm": [1.0, 2.0, 3.0]})
-        rec.log_scalars("command", 0.0, {"position_counts": [1, 2, 3]})
+        rec.log_scalars("pump", 0.0, {"pressure_kpa": 3.0})
     views = read_rrd_views(path)
-    assert views["hand and foam"]["kind"] == "3D"
-    assert views["hand and foam"]["origin"] == "/world"
-    assert views["tactile pads (kPa)"]["kind"] == "2D" and views["tactile pads (kPa)"]["origin"] == "/tactile"
-    assert views["pad forces, eq. 6 (N)"]["kind"] == "TimeSeries"
-    assert views["cameras"]["kind"] == "TextDocument"
-    for group in PLOT_GROUPS:
-        assert views[group]["kind"] == "TimeSeries"
-        assert views[group]["contents"] == [f"/plots/hand/{group}", f"/plots/command/{group}"]
+    assert views["strain-gauge torque, eq. 2 (N·m)"]["contents"] == ["/plots/hand/torque_nm"]
+    assert views["other series"]["contents"] == ["/plots/pump/pressure_kpa"]
 
 
 def test_close_is_idempotent_and_final(tmp_path):

@@ -1,0 +1,356 @@
+"""The Rerun blueprints of the project: what a run (compress, free, with cameras, predicting, identified)
+shows at first sight, and the fixed colours and names its views share.
+
+One fixed colour per finger everywhere (plots, the hand model, the pads); a view's title carries its
+quantity and unit (Rerun 0.41's time-series axes take no label of their own); what is compared sits in
+one view: command against measured position, the simulator's truth against what the sensors say.
+Entity paths are the ones twin.viz.rerun_log writes (and twin.identify.report for /plots/identify).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+TIMELINE = "sim_time"
+FINGERS = ("F1", "F2", "F3")
+FINGER_RGB = {"F1": (228, 26, 28), "F2": (30, 120, 220), "F3": (40, 170, 60), "S": (150, 150, 150)}
+"""Red, blue, green (grey for the spread): the same in every plot and on the hand model's finger links."""
+PALM_RGB = (150, 150, 150)
+HAND_ENTITY = "world/hand"
+STEREO_ENTITY = f"{HAND_ENTITY}/stereo"
+RECTIFIED_ENTITY = f"{STEREO_ENTITY}/rectified_left"
+DEPTH_ENTITY = f"{RECTIFIED_ENTITY}/depth"
+CLOUD_ENTITY = f"{STEREO_ENTITY}/cloud"
+MESH_ENTITY = f"{STEREO_ENTITY}/mesh"
+FUSED_CLOUD_ENTITY = f"{HAND_ENTITY}/fused/cloud"
+FUSED_MESH_ENTITY = f"{HAND_ENTITY}/fused/mesh"
+TACTILE_POINTS_ENTITY = f"{HAND_ENTITY}/tactile_contacts"
+TACTILE_ENTITY = "tactile"
+LOG_ENTITY = "log"
+COMPRESSION_WINDOW_S = 4.0
+"""The compression-window view shows the last 4 s before the time cursor (two periods of the 0.5 Hz
+sine), so the y axis fits the squeeze instead of the 0 -> 12,000-count close."""
+DEFAULT_EYE_TARGET_M = (0.0, 0.0, 0.3)
+EYE_OFFSET_M = (0.14, -0.19, 0.11)
+"""Where the 3-D camera sits from what it looks at (the foam): in front of the palm, above, to one side."""
+FINGER_KEY = "F1 red, F2 blue, F3 green"
+"""The colour key, in the titles of the plots that show the fingers (their legends are hidden: they
+covered the curves; a series' name shows on hover)."""
+IDENTIFY_QUANTITIES = {
+    "tactile_n": "R tactile (eq. 6)",
+    "gauge_eq4_n": "R strain gauge (eq. 4)",
+    "model_n": "R model",
+}
+"""/plots/identify/f<k>/<quantity> (twin.identify.report) and the name each series gets here."""
+
+
+def lighter(rgb: Sequence[int], amount: float = 0.5) -> tuple[int, int, int]:
+    """A colour blended towards white: the same finger's command or truth beside its measurement."""
+    return tuple(round(c + (255 - c) * amount) for c in rgb)  # type: ignore[return-value]
+
+
+def finger_of(name: str) -> str | None:
+    """ "F1" for a body or pad named f1_*, "S" for the spread, None for anything else (the palm)."""
+    low = name.lower()
+    for finger in FINGERS:
+        if low.startswith(finger.lower()):
+            return finger
+    return None
+
+
+def finger_colors(labels: Sequence[str], *, light: bool = False) -> list[tuple[int, int, int]]:
+    """The fixed colour of each series label ("F1", "f2_tip", "palm"...), lighter for a reference."""
+    out = []
+    for label in labels:
+        finger = finger_of(label) if label != "S" else "S"
+        rgb = FINGER_RGB[finger] if finger else PALM_RGB
+        if finger and "inner" in label.lower():  # a finger's second pad: between its colour and white
+            rgb = lighter(rgb, 0.35)
+        out.append(lighter(rgb) if light else tuple(rgb))
+    return out
+
+
+def series(labels: Sequence[str], *, light: bool = False, width: float = 2.0) -> rr.SeriesLines:
+    """Named, fixed-colour lines for a multi-series entity (thin and light for a command or truth)."""
+    return rr.SeriesLines(
+        names=list(labels), colors=finger_colors(labels, light=light), widths=[width] * len(labels)
+    )
+
+
+# What each plotted entity is called and how it is drawn: (labels, light, width).
+_HAND = {
+    f"/plots/hand/{f}": (FINGERS, False, 2.0) for f in ("position_counts", "velocity_rad_s", "torque_nm")
+}
+_HAND["/plots/hand/force_kg"] = (FINGERS, False, 2.0)
+_COMMAND = {"/plots/command/position_counts": (tuple(f"{f} command" for f in FINGERS), True, 1.5)}
+_PADS = ("f1_tip", "f2_tip", "f3_tip", "f1_inner", "f2_inner", "f3_inner", "palm")
+_TIPS = ("F1 tip", "F2 tip", "F3 tip")
+_SIM = {
+    "/plots/truth/tip_contact_force_n": (tuple(f"{t} true" for t in _TIPS), True, 1.5),
+    "/plots/tactile/tip_force_n": (tuple(f"{t} eq. 6" for t in _TIPS), False, 2.0),
+    "/plots/truth/outer_rad": (tuple(f"{f} outer true" for f in FINGERS), True, 1.5),
+    "/plots/observer/outer_rad": (tuple(f"{f} outer observer" for f in FINGERS), False, 2.0),
+    "/plots/truth/inner_rad": (tuple(f"{f} inner true" for f in FINGERS), True, 1.5),
+    "/plots/observer/inner_rad": (tuple(f"{f} inner observer" for f in FINGERS), False, 2.0),
+}
+SERIES_STYLE: dict[str, tuple[Sequence[str], bool, float]] = {
+    **_HAND,
+    **_COMMAND,
+    "/plots/tactile/pad_force_n": (_PADS, False, 1.5),
+    **_SIM,
+}
+"""Every multi-series plot entity RunRecording writes: its series' names, whether drawn light, width.
+The recording logs these statically (rr.SeriesLines) and the views override with them too, so the
+colours hold whichever file the viewer opens first."""
+
+
+@dataclass(frozen=True)
+class RunKind:
+    """What a run recorded, which decides its views."""
+
+    experiment: str = "compress"
+    sim: bool = True
+    stereo: bool = False
+    predict: bool = False
+    identify: bool = False
+    eye_target_m: tuple[float, float, float] | None = None
+
+    @property
+    def name(self) -> str:
+        """ "compress", "free", "cameras", "predict" or "identify" (the richest that applies)."""
+        if self.identify:
+            return "identify"
+        if self.predict:
+            return "predict"
+        if self.stereo:
+            return "cameras"
+        return self.experiment
+
+
+def _overrides(paths: Sequence[str]) -> dict[str, rr.SeriesLines]:
+    out = {}
+    for path in paths:
+        if path in SERIES_STYLE:
+            labels, light, width = SERIES_STYLE[path]
+            out[path] = series(labels, light=light, width=width)
+    return out
+
+
+def _plot(name: str, paths: Sequence[str], **kwargs: object) -> rrb.TimeSeriesView:
+    """A time-series view of explicit entities, series named and coloured by SERIES_STYLE."""
+    return rrb.TimeSeriesView(
+        name=name,
+        origin="/plots",
+        contents=list(paths),
+        overrides=_overrides(paths),
+        plot_legend=rrb.PlotLegend(visible=False),  # it covered the curves; colours: see FINGER_KEY
+        **kwargs,
+    )
+
+
+def scene_view(kind: RunKind) -> rrb.Spatial3DView:
+    """The hand and the foam, z up, the eye in front of the palm looking at the foam. In camera runs one
+    cloud (the stereo points) and one mesh (the fused surface) are on; the stereo mesh, the fused cloud
+    and the depth image's own back-projection are listed but hidden."""
+    target = np.array(kind.eye_target_m or DEFAULT_EYE_TARGET_M, dtype=float)
+    eye = rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=(target + EYE_OFFSET_M).tolist(),
+        look_target=target.tolist(),
+        eye_up=[0.0, 0.0, 1.0],
+    )
+    hidden = {}
+    if kind.stereo:
+        hidden = {
+            f"/{p}": rrb.EntityBehavior(visible=False)
+            for p in (MESH_ENTITY, FUSED_CLOUD_ENTITY, DEPTH_ENTITY)
+        }
+    return rrb.Spatial3DView(
+        name="hand and foam (m, z up)", origin="/world", eye_controls=eye, overrides=hidden
+    )
+
+
+def hand_views(kind: RunKind) -> list[rrb.View]:
+    """Command against measured position (whole run and the compression window), velocity, torque, force."""
+    position = ["/plots/hand/position_counts", "/plots/command/position_counts"]
+    views: list[rrb.View] = [_plot(f"finger position (counts), command light: {FINGER_KEY}", position)]
+    if kind.experiment == "compress":
+        window = rrb.VisibleTimeRange(
+            TIMELINE,
+            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-COMPRESSION_WINDOW_S),
+            end=rrb.TimeRangeBoundary.cursor_relative(seconds=0.0),
+        )
+        views.append(
+            _plot(
+                f"compression window, last {COMPRESSION_WINDOW_S:g} s (counts)", position, time_ranges=window
+            )
+        )
+    views += [
+        _plot("joint velocity (rad/s)", ["/plots/hand/velocity_rad_s"]),
+        _plot("strain-gauge torque, eq. 2 (N·m)", ["/plots/hand/torque_nm"]),
+        _plot("fingertip force, eq. 3 (kg)", ["/plots/hand/force_kg"]),
+    ]
+    return views
+
+
+def truth_views() -> list[rrb.View]:
+    """Sim runs: the simulator's truth (light) over what the sensors and the science say."""
+    return [
+        _plot(
+            "tip contact force: true (light) vs eq. 6 (N)",
+            ["/plots/tactile/tip_force_n", "/plots/truth/tip_contact_force_n"],
+        ),
+        _plot(
+            "outer joint: true (light) vs clutch observer (rad)",
+            ["/plots/observer/outer_rad", "/plots/truth/outer_rad"],
+        ),
+        _plot(
+            "inner joint: true (light) vs clutch observer (rad)",
+            ["/plots/observer/inner_rad", "/plots/truth/inner_rad"],
+        ),
+    ]
+
+
+def tactile_view(full_scale_kpa: float | None = None) -> rrb.Spatial2DView:
+    """The pads as filled cells (one image a pad), colour scale stated in the view."""
+    scale = "colour scale in the view" if full_scale_kpa is None else f"0-{full_scale_kpa:g} kPa"
+    return rrb.Spatial2DView(name=f"tactile pressure (kPa, viridis, {scale})", origin=f"/{TACTILE_ENTITY}")
+
+
+def camera_views(kind: RunKind) -> list[rrb.View]:
+    """Left and right images, the rectified depth (with the contours in a predicting run)."""
+    views: list[rrb.View] = [
+        rrb.Spatial2DView(name=f"{side} camera", origin=f"/{STEREO_ENTITY}/{side}")
+        for side in ("left", "right")
+    ]
+    views.append(
+        rrb.Spatial2DView(name="rectified left: depth (m) and contours", origin=f"/{RECTIFIED_ENTITY}")
+    )
+    return views
+
+
+def identify_views() -> list[rrb.View]:
+    """The identification (`twin identify`): per finger, reaction force by three routes and the indentation,
+    on separate axes (N and mm)."""
+    views: list[rrb.View] = []
+    for k in (1, 2, 3):
+        paths = [f"/plots/identify/f{k}/{q}" for q in IDENTIFY_QUANTITIES]
+        overrides = {
+            p: rr.SeriesLines(
+                names=[f"F{k} {IDENTIFY_QUANTITIES[q]}"],
+                colors=[lighter(FINGER_RGB[f"F{k}"], a) for a in (0.0,)]
+                if q == "tactile_n"
+                else [lighter(FINGER_RGB[f"F{k}"], 0.45 if q == "gauge_eq4_n" else 0.7)],
+                widths=[2.0 if q == "tactile_n" else 1.5],
+            )
+            for p, q in zip(paths, IDENTIFY_QUANTITIES, strict=True)
+        }
+        views.append(
+            rrb.TimeSeriesView(
+                name=f"F{k} reaction force R (N): tactile eq. 6 (dark), gauge eq. 4 (mid), model (light)",
+                origin="/plots/identify",
+                contents=paths,
+                overrides=overrides,
+                plot_legend=rrb.PlotLegend(visible=False),
+            )
+        )
+    paths = [f"/plots/identify/f{k}/indentation_mm" for k in (1, 2, 3)]
+    overrides = {
+        p: rr.SeriesLines(names=[f"F{k} indentation"], colors=[FINGER_RGB[f"F{k}"]])
+        for k, p in zip((1, 2, 3), paths, strict=True)
+    }
+    views.append(
+        rrb.TimeSeriesView(
+            name=f"indentation δ (mm): {FINGER_KEY}",
+            origin="/plots/identify",
+            contents=paths,
+            overrides=overrides,
+            plot_legend=rrb.PlotLegend(visible=False),
+        )
+    )
+    return views
+
+
+def run_blueprint(kind: RunKind, *, extra: Sequence[str] = ()) -> rrb.Blueprint:
+    """The default blueprint of a run of this kind.
+
+    Left: the 3-D scene above the sensors (cameras and depth side by side in camera runs, the tactile
+    pads beside them). Right: the time series in tabs, the hand's first; the log (phases) below them.
+    """
+    sensors: list[rrb.View] = [tactile_view()]
+    if kind.stereo:
+        sensors += camera_views(kind)
+    elif kind.predict:
+        sensors.append(rrb.Spatial2DView(name="contour: predicted (px)", origin=f"/{RECTIFIED_ENTITY}"))
+    left = rrb.Vertical(scene_view(kind), rrb.Horizontal(*sensors), row_shares=[3, 2])
+    pads = _plot("pad forces, eq. 6 (N)", ["/plots/tactile/pad_force_n"])
+    tabs: list[rrb.Container] = [rrb.Vertical(*hand_views(kind), name="hand")]
+    if kind.sim:
+        truth = [*truth_views(), pads]
+        if kind.stereo:
+            error = ["/plots/stereo_truth/median_mm", "/plots/stereo_truth/p90_mm"]
+            truth.append(_plot("reconstruction error vs truth: median, p90 (mm)", error))
+        tabs.append(rrb.Vertical(*truth, name="truth vs sensors"))
+    else:
+        tabs.append(rrb.Vertical(pads, name="tactile"))
+    if extra:  # plotted entities no view of this kind names
+        tabs.append(rrb.Vertical(_plot("other series", list(extra)), name="other"))
+    if kind.identify:
+        tabs.insert(0, rrb.Vertical(*identify_views(), name="identification"))
+    log = rrb.TextLogView(name="log: phases and warnings", origin=f"/{LOG_ENTITY}")
+    right = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), log, row_shares=[5, 1])
+    return rrb.Blueprint(
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE),
+        rrb.Horizontal(left, right, column_shares=[3, 2]),
+        collapse_panels=True,
+    )
+
+
+def views_of(blueprint: rrb.Blueprint | rrb.Container) -> list[rrb.View]:
+    """Every view in a blueprint (or container), depth first."""
+    out: list[rrb.View] = []
+    root = blueprint.root_container if isinstance(blueprint, rrb.Blueprint) else blueprint
+    for part in root.contents if isinstance(root, rrb.Container) else [root]:
+        if isinstance(part, rrb.View):
+            out.append(part)
+        elif isinstance(part, rrb.Container):
+            out += views_of(part)
+    return out
+
+
+def plotted_paths(kind: RunKind) -> set[str]:
+    """The entities the time-series views of a run's blueprint name explicitly."""
+    return {
+        str(path)
+        for view in views_of(run_blueprint(kind))
+        if isinstance(view, rrb.TimeSeriesView)
+        for path in view.contents
+    }
+
+
+def kind_of_run(run_dir: Path, eye_target_m: Sequence[float] | None = None) -> RunKind:
+    """What a run directory holds (run.json's experiment, backend and streams; an identify.rrd beside
+    it), as the kind its blueprint is made for. A run.json that cannot be read gives the default."""
+    import json
+
+    try:
+        info = json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        info = {}
+    meta = info.get("metadata", {}) if isinstance(info, dict) else {}
+    streams = info.get("streams", {}) if isinstance(info, dict) else {}
+    experiment = meta.get("experiment", {})
+    return RunKind(
+        experiment=str(experiment.get("name", "compress")) if isinstance(experiment, dict) else "compress",
+        sim=meta.get("backend", "sim") == "sim",
+        stereo="stereo" in streams,
+        predict="shape" in streams,
+        identify=any(run_dir.glob("*/identify.rrd")),
+        eye_target_m=None if eye_target_m is None else tuple(float(x) for x in eye_target_m),
+    )

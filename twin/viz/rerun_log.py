@@ -730,10 +730,13 @@ class RunRecording:
             on_grid = ((pixels % cloud_stride) == 0).all(axis=1)  # the depth image keeps every point
             self.rec.log(CLOUD_ENTITY, rr.Points3D(points[on_grid], colors=colors[on_grid], radii=0.0006))
             used, faces = _compact_mesh(_short_triangles(points, np.asarray(r.triangles).reshape(-1, 3)))
-            self.rec.log(
-                MESH_ENTITY,
-                rr.Mesh3D(vertex_positions=points[used], triangle_indices=faces, vertex_colors=colors[used]),
-            )
+            if len(faces):  # the per-frame pipeline meshes only the fused cloud: no empty mesh each frame
+                self.rec.log(
+                    MESH_ENTITY,
+                    rr.Mesh3D(
+                        vertex_positions=points[used], triangle_indices=faces, vertex_colors=colors[used]
+                    ),
+                )
         if fused_points_hand is not None:
             fused = np.asarray(fused_points_hand, dtype=np.float32).reshape(-1, 3)
             self.rec.log(FUSED_CLOUD_ENTITY, rr.Points3D(fused, colors=[FUSED_RGB], radii=0.0006))

@@ -181,3 +181,18 @@ def test_a_triangle_across_a_gap_is_not_drawn():
     points = np.vstack([grid, far])
     triangles = np.array([[0, 1, 3], [1, 4, 3], [1, 2, 4], [2, 5, 4], [4, 5, 9]])
     np.testing.assert_array_equal(_short_triangles(points, triangles), triangles[:4])
+
+
+def test_a_reconstruction_without_triangles_logs_its_cloud_but_no_empty_mesh(logged, tmp_path):
+    """The rig's per-frame reconstruction meshes nothing (only the fused cloud is meshed): its cloud is
+    drawn, and the per-frame mesh entity stays out of the recording instead of an empty mesh every frame."""
+    import dataclasses
+
+    _, _, _, _, inputs = logged
+    frame, r, _, _ = inputs[0]
+    bare = dataclasses.replace(r, triangles=np.zeros((0, 3), dtype=np.int32))
+    path = tmp_path / "no_mesh.rrd"
+    with RunRecording(path, recording_id="no-mesh") as rec:
+        rec.log_stereo(frame.t_s, frame.left, frame.right, bare)
+    entities = read_rrd_entities(path)
+    assert entities[f"/{CLOUD_ENTITY}"] == 1 and f"/{MESH_ENTITY}" not in entities

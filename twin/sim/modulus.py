@@ -4,24 +4,20 @@ One method for every object the twin can hold (block, cylinder, sphere, any clos
 with nothing tuned per shape or size: the twin's mechanics carry the geometry.
 1. The run's squeeze stiffness S is measured (twin.identify.identify.squeeze_stiffness: the slope of
    the fingertips' summed force on their summed travel into the object over the first CYCLES
-   compression cycles). It is mostly the foam's: an object 3 mm off the palm's centre moves load
-   between the fingers by up to 40 % and S by a few per cent on most objects (docs/identification.md).
+   compression cycles). It is the foam's: an object 3 mm off the palm's centre moves load between
+   the fingers by up to 40 % but S by a few per cent (docs/identification.md).
 2. The run's procedure (its recorded compress profile) is run again in the twin, closed loop as the
    hand ran it, with the described object at candidate moduli; each simulated run goes through
    exactly the same code as the real one. S grows with E nearly as a power (S ~ E^0.7-1.0): a first
    simulation at a reference modulus gives a first estimate, five around it (a factor of 4) the power
    law, which is inverted (log-log); a second round where the estimate left the bracket.
-3. Where the object sat on the palm, which a run cannot tell (where its fingers met the object moves as
-   much between two runs' sensor noise as between placements 3 mm apart), moves S by up to 40 %: the
-   twin runs the procedure at the estimate with the object at each of a 3 x 3 square of placements over
-   the tolerance, E is read through the power law from each, and averaged (in log E) over the square.
-4. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
-   cycles); the procedure's scatter about the power law (the run's S is one more draw of it); the
-   spread of E over the placement square; and what else the run cannot tell apart, each moved to both
-   ends of its tolerance at the estimate and read through the power law as a uniform error of the
-   larger shift: its size (a primitive's extents; not a mesh's) and its Poisson ratio within the range
+3. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
+   cycles); the procedure's scatter about the power law (the run's S is one more draw of it); and
+   what the run cannot tell apart, each moved to both ends of its tolerance at the estimate and read
+   through the power law as a uniform error of the larger shift: the object's placement on the palm
+   (x and y), its size (a primitive's extents; not a mesh's), and its Poisson ratio within the range
    of flexible polyurethane foams.
-5. A posterior check: the twin over those tolerances must grasp the object as the hand did (which
+4. A posterior check: the twin over those tolerances must grasp the object as the hand did (which
    fingertips touch, for how long), or their stiffnesses are not comparable.
 
 A run the method cannot stand behind ends in EstimateError, one line: no compression, an object that
@@ -74,21 +70,11 @@ PLACEMENT_TOLERANCE_M = 0.003
 SIZE_TOLERANCE_M = 0.001
 """A described size is within 1 mm of the object's, every extent (calipers on soft foam)."""
 MIN_POINTS = 3
-"""Simulations of a bracket the twin must grasp for a power law (of BRACKET's five), and of the placement
-square for its average (of nine)."""
+"""Moduli of a bracket the twin must grasp for a power law to be fitted (of BRACKET's five)."""
 CONTACT_TOLERANCE = 0.2
 """How far a fingertip's contact fraction may lie outside the twin's range (posterior check)."""
 POISSON_RANGE = (0.2, 0.35)
 """Flexible polyurethane foams (twin.sim.foam's library docstring); the simulations take the middle."""
-PLACEMENT_GRID = tuple(
-    (x * PLACEMENT_TOLERANCE_M, y * PLACEMENT_TOLERANCE_M) for x in (-1, 0, 1) for y in (-1, 0, 1)
-)
-"""Placements simulated at the estimate: the corners, edges and centre of the tolerance square. Where the
-object sits decides how the fingers close on it (which touches first, where each tip lands), and that
-moves S by up to 40 %, yet a run cannot tell it: where its fingers met the object moves as much between
-two runs' sensor noise as between placements 3 mm apart (docs/identification.md). So E is averaged
-over the square, and the spread over it is part of the interval."""
-CENTRE = PLACEMENT_GRID.index((0.0, 0.0))
 
 
 class EstimateError(FitError):
@@ -103,7 +89,7 @@ class ModulusEstimate:
     young_pa: float
     ci95_pa: tuple[float, float]
     sigma_log: dict[str, float]
-    """1-sigma of log E from each source (noise, scatter, placement, size, poisson) and in
+    """1-sigma of log E from each source (noise, scatter, placement_x, placement_y, size, poisson) and in
     total."""
     stiffness_n_m: float
     """The run's squeeze stiffness S."""
@@ -259,8 +245,8 @@ def estimate_modulus(
         """Why the twin's own grasp failed, for those of `foams` already simulated."""
         return [sims[key(f)][2] for f in foams if key(f) in sims and sims[key(f)][2]]
 
-    # the first simulation, a bracket, the placements and both ends of each tolerance (a mesh has no size)
-    planned = 1 + len(BRACKET) + len(PLACEMENT_GRID) + 2 * (1 if base.shape == "mesh" else 2)
+    # the first simulation, a bracket, the estimate and both ends of each tolerance (a mesh has no size)
+    planned = 1 + len(BRACKET) + 1 + 2 * (3 if base.shape == "mesh" else 4)
 
     with worker_pool(workers, initializer=_init_worker, initargs=(profile, duration_s, cycles)) as pool:
 
@@ -309,34 +295,23 @@ def estimate_modulus(
                 f"kPa, outside the {RANGE_PA[0] / 1e3:.0f}-{RANGE_PA[1] / 1e3:.0f} kPa of foams the method "
                 "answers for"
             )
-        # Where the object sat, which the run cannot tell: the twin at every placement of the tolerance
-        # square at the estimate, E read through the power law from each placement's S and averaged (in
-        # log E) over the square; its spread there is the placement's part of the interval. What else
-        # the run cannot tell apart, Poisson ratio and size, at both ends of its range, alongside.
-        grid = [at(estimate, placement_m=p) for p in PLACEMENT_GRID]
-        nuisances = {"poisson": [at(estimate, poisson=p) for p in POISSON_RANGE]}
+        # What the run cannot tell apart, at both ends of its tolerance, read through the power law.
+        nuisances = {
+            "placement_x": [at(estimate, placement_m=(s * PLACEMENT_TOLERANCE_M, 0.0)) for s in (1, -1)],
+            "placement_y": [at(estimate, placement_m=(0.0, s * PLACEMENT_TOLERANCE_M)) for s in (1, -1)],
+            "poisson": [at(estimate, poisson=p) for p in POISSON_RANGE],
+        }
         if base.shape != "mesh":  # a mesh is its scan: its size is the file's
             nuisances["size"] = [
                 at(estimate, size_m=tuple(e + s * SIZE_TOLERANCE_M for e in base.size_m)) for s in (1, -1)
             ]
         moved = [f for fs in nuisances.values() for f in fs]
-        evaluate(grid + moved)
-        s_grid = np.array([sims[key(f)][0] for f in grid])
-        usable = np.isfinite(s_grid)  # a placement where the twin's own grasp failed is a missing point
-        if usable.sum() < MIN_POINTS:
-            raise _failed(f"{run.path}: too few placements near {estimate / 1e3:.3g} kPa", reasons(grid))
-        log_e_at = math.log(estimate) + (math.log(measured) - np.log(s_grid[usable])) / power
-        log_estimate = float(log_e_at.mean())
-        placement_sigma = float(log_e_at.std())
-        estimate = math.exp(log_estimate)
-        if not RANGE_PA[0] <= estimate <= RANGE_PA[1]:
-            raise EstimateError(
-                f"{run.path}: the squeeze stiffness ({measured:.0f} N/m) puts E at {estimate / 1e3:.3g} "
-                f"kPa, outside the {RANGE_PA[0] / 1e3:.0f}-{RANGE_PA[1] / 1e3:.0f} kPa of foams the "
-                "method answers for"
-            )
-        shifted = [sims[key(f)][0] for f in moved]
-        twin_contact = np.array([sims[key(f)][1] for f in grid + moved])
+        (s_centre,) = evaluate([at(estimate)])
+        if not math.isfinite(s_centre):
+            raise _failed(f"{run.path}: no simulation at the estimate", reasons([at(estimate)]))
+        centre = math.log(s_centre)
+        shifted = evaluate(moved)
+        twin_contact = np.array([sims[k][1] for k in _run([at(estimate), *moved])])
         twin_contact = twin_contact[np.isfinite(twin_contact).all(axis=1)]
     # A posterior check: the twin, with the object anywhere within the tolerances, must grasp it as the
     # run did (which fingertips touch, and for how long); otherwise it measures another stiffness.
@@ -353,16 +328,12 @@ def estimate_modulus(
     sigma = {
         "noise": measured_sigma / measured / power if math.isfinite(measured_sigma) else 0.0,
         "scatter": scatter / power,
-        "placement": placement_sigma,
     }
-    if not math.isfinite(s_grid[CENTRE]):  # the tolerances below are moves from the centred object
-        raise _failed(f"{run.path}: no simulation at the estimate", reasons([grid[CENTRE]]))
-    reference = math.log(s_grid[CENTRE])
     for i, name in enumerate(nuisances):
         ends = [v for v in shifted[2 * i : 2 * i + 2] if math.isfinite(v)]
         if not ends:  # the twin cannot grasp the object anywhere within this tolerance
-            raise _failed(f"{run.path}: no {name} within its tolerance", reasons(moved))
-        shifts = [abs(math.log(v) - reference) / power for v in ends]
+            raise _failed(f"{run.path}: no {name.replace('_', ' ')} within its tolerance", reasons(moved))
+        shifts = [abs(math.log(v) - centre) / power for v in ends]
         sigma[name] = max(shifts) / math.sqrt(3.0)  # uniform within the tolerance
     sigma["total"] = math.sqrt(sum(v**2 for v in sigma.values()))
     half = 1.959964 * sigma["total"]

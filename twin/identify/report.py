@@ -169,10 +169,12 @@ def log_rerun(ident: Identification, path: Path) -> Path:
     """The figure's time series under plots/identify/f<k>/..., on the run's timeline and recording id."""
     import rerun as rr
 
+    from twin.viz.blueprint import FINGER_RGB, IDENTIFY_QUANTITIES
     from twin.viz.rerun_log import TIMELINE
 
     rec = rr.RecordingStream("barrett_twin", recording_id=ident.run_path.name)
     rec.save(path)
+    names = {**IDENTIFY_QUANTITIES, "indentation_mm": "indentation (mm)"}
     for f in ident.fingers:
         times = rr.TimeColumn(TIMELINE, duration=f.t_s)
         for name, values in (
@@ -181,11 +183,11 @@ def log_rerun(ident: Identification, path: Path) -> Path:
             ("model_n", f.reaction_model_n),
             ("indentation_mm", f.delta_m * 1e3),
         ):
-            rec.send_columns(
-                f"plots/identify/f{f.finger}/{name}",
-                indexes=[times],
-                columns=rr.Scalars.columns(scalars=values),
-            )
+            entity = f"plots/identify/f{f.finger}/{name}"
+            # named and coloured in the file itself, so the series read right even opened on their own
+            label = f"F{f.finger} {names[name]}"
+            rec.log(entity, rr.SeriesLines(names=[label], colors=[FINGER_RGB[f"F{f.finger}"]]), static=True)
+            rec.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
     rec.flush()
     rec.disconnect()
     return path

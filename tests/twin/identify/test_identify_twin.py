@@ -146,3 +146,23 @@ def test_the_figure_is_drawn_even_when_its_worker_process_dies(ident, tmp_path):
         worker.draw(figure_series(ident), path)
         worker.wait()
     assert path.stat().st_size > 10_000 and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_rerun_file_names_and_colours_its_series_on_its_own(ident, tmp_path):
+    """identify.rrd opened alone (without the run's blueprint) still says what each series is: a static
+    name per finger and route, in the finger's colour."""
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    from twin.identify.report import log_rerun
+
+    path = log_rerun(ident, tmp_path / "identify.rrd")
+    component = rr.SeriesLines.descriptor_names().component
+    names = {
+        chunk.entity_path: chunk.to_record_batch().column(component).to_pylist()[0]
+        for chunk in RrdReader(path).stream().filter(is_static=True)
+        if component in chunk.to_record_batch().schema.names
+    }
+    assert names["/plots/identify/f1/tactile_n"] == ["F1 R tactile (eq. 6)"]
+    assert names["/plots/identify/f3/indentation_mm"] == ["F3 indentation (mm)"]
+    assert len(names) == 4 * len(ident.fingers)

@@ -72,19 +72,6 @@ def _emulator_late(log: list[str]) -> tuple[float, float]:
     return float("nan"), float("nan")
 
 
-def _stop(procs: list[subprocess.Popen]) -> None:
-    """End the processes this benchmark started (and only those)."""
-    for proc in procs:
-        if proc.poll() is None:
-            proc.terminate()
-    for proc in procs:
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def _read_exactly(fd: int, n: int, timeout_s: float) -> bytes:
     out = b""
     deadline = time.monotonic() + timeout_s
@@ -155,6 +142,8 @@ def run(quick: bool = False) -> dict:
                 late = _measure(path, baud, cycles) * 1e3
                 time.sleep(0.5)  # the loop's summary line
             finally:
+                from benchmarks.bridge_under_load import _stop  # one way to end what we started
+
                 _stop(procs)
             emulator_p99, emulator_max = _emulator_late(log)
             found = (re.search(r"serial thread: ([^)]+)", ln) for ln in log)

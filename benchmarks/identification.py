@@ -194,6 +194,7 @@ def _emulated_run(name: str, scratch: Path) -> dict:
             if line.startswith("ready"):
                 break
         run_dir = scratch / f"hw-{name}"
+        shutil.rmtree(run_dir, ignore_errors=True)  # a wall-time run: never reused from an earlier one
         subprocess.run(
             [*twin, "run", "compress", "--backend", "hardware", "--rig", str(rig),
              "--duration", str(DURATION_S), "--out", str(run_dir), "--no-progress"],

@@ -298,10 +298,10 @@ INTRO = (
     "noise and what the run cannot tell apart (placement within 3 mm, size within 1 mm, Poisson ratio "
     "0.2-0.35). No table per shape or size. Hidden cases drawn from seed {seed} (not used in "
     "development, but the choice between this method and a placement square was made on it: "
-    "docs/identification.md): the first {per_shape} per shape the hand held (block, cylinder, sphere, an egg and a "
-    "bumpy sphere from STL), sizes 50-90 mm, E log-uniform 8-300 kPa, Poisson ratio 0.2-0.35, placed "
-    "uniformly within 3 mm of the palm's centre, sensor noise on, 14 s runs; the estimate gets the "
-    "shape and size (or the mesh) only."
+    "docs/identification.md): the first {per_shape} per shape the hand held (block, cylinder, sphere, "
+    "an egg and a bumpy sphere from STL), sizes 50-90 mm, E log-uniform 8-300 kPa, Poisson ratio "
+    "0.2-0.35, placed uniformly within 3 mm of the palm's centre, sensor noise on, 14 s runs; the "
+    "estimate gets the shape and size (or the mesh) only."
 )
 
 

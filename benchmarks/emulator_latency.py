@@ -51,6 +51,7 @@ def _start_emulator(baud: int, log: list[str]) -> tuple[subprocess.Popen, str]:
         stderr=subprocess.STDOUT,
         text=True,
         cwd=ROOT,
+        env={**os.environ, "BARRETT_TWIN_REALTIME": "1"},  # the raised serial thread, as measured
     )
     for line in proc.stdout:
         log.append(line)

@@ -167,8 +167,9 @@ class Link:
             close_fd(self.fd)
 
 
-NO_REALTIME_ENV = "BARRETT_TWIN_NO_REALTIME"
-"""Set (to anything) to keep the emulators' serial threads at normal priority."""
+REALTIME_ENV = "BARRETT_TWIN_REALTIME"
+"""Set (to anything) to raise the emulators' serial threads (off by default: with several emulators on a
+loaded 2-core machine, real-time threads starved their own processes' shutdown in the test suite)."""
 SERIAL_RT_PRIORITY = 1
 """The lowest SCHED_FIFO priority: above every ordinary thread, below the kernel's own."""
 SERIAL_NICE = -10
@@ -181,7 +182,7 @@ def raise_thread_priority() -> str:
 
     Only a thread that sleeps between short bursts may have this: it handles at most the wire's bytes.
     Threads it starts inherit the class, so it starts none. Linux only; elsewhere "normal"."""
-    if os.environ.get(NO_REALTIME_ENV) or not hasattr(os, "sched_setscheduler"):
+    if not os.environ.get(REALTIME_ENV) or not hasattr(os, "sched_setscheduler"):
         return "normal"
     tid = threading.get_native_id()
     try:

@@ -276,8 +276,13 @@ class PortServer:
         os.set_blocking(master, False)
         path = os.ttyname(slave)
         link = Link(fd=master)
+        once = threading.Lock()
 
         def close_pty() -> None:
+            # Both the session's end and close() call this: the second call must not close the
+            # descriptor numbers again, which by then may be another port's (a pty hung up mid-run).
+            if not once.acquire(blocking=False):
+                return
             link.close()
             close_fd(slave)  # the device node goes away with the last descriptor
 

@@ -286,14 +286,22 @@ class PortServer:
             link.close()
             close_fd(slave)  # the device node goes away with the last descriptor
 
-        self._closers.append(close_pty)
-
         def run() -> None:
             outcome = self._guarded_session(link)
             self.on_event(f"pty session ended: {outcome}")
             close_pty()
 
-        self._start(run)
+        session = self._start(run)
+
+        def release() -> None:
+            # A session still running would go on reading and writing these descriptor numbers after
+            # they were closed, by then maybe another port's: it closes them itself when it ends.
+            if session.is_alive():
+                self.on_event(f"the session on {path} has not ended: it closes its pty when it does")
+                return
+            close_pty()
+
+        self._closers.append(release)
         self.address = path
         return path
 

@@ -12,6 +12,7 @@ from gymnasium.utils.env_checker import check_env
 import twin.envs  # noqa: F401  (registers the ids)
 from hardware.rig_emulator import RigEmulator
 from twin import units
+from twin.envs.squeeze import OPEN_COUNTS
 from twin.safety import UnsafeCommandError
 
 FIELDS = ("position_counts", "velocity_counts", "strain_counts", "tactile_counts")
@@ -86,6 +87,6 @@ def test_check_env_and_the_squeeze_task_on_the_emulated_rig(tmp_path: Path):
         _, info, _ = episode(env)
         assert info["success"], info
         obs, _ = env.reset()  # the fingers opened again on the same connection
-        assert obs["position_counts"][:3].max() < 200
+        assert obs["position_counts"][:3].max() < OPEN_COUNTS
         assert obs["tactile_counts"].max() > 0  # the pads are there, over their own port
         env.close()

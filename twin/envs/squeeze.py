@@ -35,6 +35,11 @@ from twin.safety import SafetyLayer
 
 EPISODE_STEPS = 300
 """10 s of the hand's 30 Hz loop: the registered episodes are truncated there."""
+OPEN_COUNTS = 200
+"""A finger below this many counts counts as open at reset."""
+OPEN_TIMEOUT_S = 15.0
+"""How long a reset waits for the fingers to open: a full close undone takes ~1.7 s at the task's
+10,000 counts/s; the rest is for a host or an emulated twin running behind wall time."""
 VELOCITY_LIMIT_COUNTS = 32767
 """Bounds of a velocity reading (the wire's signed 16 bits)."""
 
@@ -151,14 +156,20 @@ class SqueezeEnv(gym.Env):
             self._open_fingers()
         return self._observe(), {"backend": self.backend_name}
 
-    def _open_fingers(self, timeout_s: float = 5.0) -> None:
-        """Send every finger to 0 and wait (at the loop's rate) until they are nearly there."""
+    def _open_fingers(self, timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        """Send every finger to 0 and wait (at the loop's rate) until they are nearly there; a hand that
+        has not opened by then is an error, not an episode that starts closed."""
         command = HandCommand(np.zeros(4), max_velocity_counts_s=self.task.max_velocity_counts_s)
         for _ in range(int(timeout_s / self._backend.hand.spec.period_s)):
             self._backend.hand.command(self._safety.check(command))
             self._advance()
-            if (self._backend.hand.read().position_counts[:3] < 200).all():
+            position = self._backend.hand.read().position_counts[:3]
+            if (position < OPEN_COUNTS).all():
                 return
+        raise RuntimeError(
+            f"reset: the fingers did not open within {timeout_s:g} s (at {position.tolist()} counts; "
+            f"open is below {OPEN_COUNTS}): is something blocking the hand?"
+        )
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """Send the set points through the safety layer, advance one period, read, score."""

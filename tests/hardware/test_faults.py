@@ -32,7 +32,9 @@ def terminated_and_restored(commands: list[str]) -> bool:
 
 
 def run_with_faults(faults: str, run_dir: Path, object_name: str | None = "block", **port_settings: float):
-    emulator = make_hand_emulator(object_name, faults=faults)
+    events: list[str] = []
+    emulator = make_hand_emulator(object_name, faults=faults, on_event=events.append)
+    emulator.events = events  # what the emulator saw, for a failing test's message
     url = emulator.serve_tcp(0)
     port = PortSettings(url=url, switch_baud=38400, baud_switch_wait_s=0.05, **port_settings)
     backend = HardwareBackend(RigConfig(hand_port=HandPortConfig(port=port)))
@@ -70,7 +72,7 @@ RECOVERED = [
 @pytest.mark.parametrize("faults", RECOVERED)
 def test_recoverable_faults_lose_no_sample(faults: str, tmp_path: Path):
     run, error, emulator = run_with_faults(faults, tmp_path / "run")
-    assert error is None
+    assert error is None, (error, emulator.failed(), emulator.events[-10:])
     assert run.status == "complete"
     hand = run.stream("hand")
     assert len(hand.t_s) == SAMPLES
@@ -82,8 +84,8 @@ def test_recoverable_faults_lose_no_sample(faults: str, tmp_path: Path):
 def test_a_slightly_late_reply_is_just_late(tmp_path: Path):
     # 50 ms late against the default allowance (SCHEDULING_MARGIN_S, 500 ms): a late reply within it is
     # a valid one, not a lost one (the 450 ms left over absorb a loaded runner's scheduling).
-    run, error, _ = run_with_faults("late@31:0.05", tmp_path / "run")
-    assert error is None and run.status == "complete"
+    run, error, emulator = run_with_faults("late@31:0.05", tmp_path / "run")
+    assert error is None and run.status == "complete", (error, emulator.failed(), emulator.events[-10:])
     assert len(run.stream("hand").t_s) == SAMPLES
     assert run.metadata["hand_recoveries"] == []
 

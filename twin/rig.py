@@ -558,7 +558,8 @@ class Rig:
 
     def _record_stereo_oldest(self) -> None:
         frame, surface, score, measured = self._stereo_jobs.popleft().result()
-        self._record_surface(frame, surface, measured)
+        errors = None if score is None else score.pop("point_error_mm", None)  # for the viewer only
+        self._record_surface(frame, surface, measured, errors)
         if score is not None:
             self.surface_scores.append(score)
             self._record("stereo_truth", frame.t_s, {k: score[k] for k in STEREO_TRUTH_FIELDS})
@@ -566,7 +567,13 @@ class Rig:
                 error = {k: score[k] for k in ("median_mm", "p90_mm") if k in score}
                 self.viewer.log_scalars("stereo_truth", frame.t_s, error)
 
-    def _record_surface(self, frame: StereoFrame, surface: SurfaceFrame, measured: np.ndarray | None) -> None:
+    def _record_surface(
+        self,
+        frame: StereoFrame,
+        surface: SurfaceFrame,
+        measured: np.ndarray | None,
+        point_error_mm: np.ndarray | None = None,
+    ) -> None:
         self._record("stereo", frame.t_s, surface.record())
         if measured is not None:
             self._record("contour", frame.t_s, {"contour_px": measured})
@@ -584,6 +591,7 @@ class Rig:
                 fused_triangles=surface.fused.triangles,
                 tactile_points_hand=surface.tactile_points_hand,
                 cloud_stride=2,
+                point_error_mm=point_error_mm,
             )
 
     def _record(self, stream: str, t_s: float, values: dict) -> None:

@@ -187,7 +187,8 @@ class SimBackend(Backend):
     def score_surface(
         self, truth: SurfaceTruth | None, points_hand: np.ndarray, pixels: np.ndarray
     ) -> dict | None:
-        """Median/p90 distance to the true surface (mm), visible-surface coverage, points off the foam."""
+        """Median/p90 distance to the true surface (mm), visible-surface coverage, points off the foam,
+        and each point's distance (`point_error_mm`, for the viewer; not a recorded field)."""
         if truth is None:
             return None
         score = score_against(truth, points_hand, pixels)
@@ -197,6 +198,7 @@ class SimBackend(Backend):
             "coverage": score.coverage,
             "outside_fraction": score.outside_fraction,
             "visible_px": score.visible_px,
+            "point_error_mm": score.point_error_mm,
         }
 
     def disconnect(self) -> None:

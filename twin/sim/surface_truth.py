@@ -62,6 +62,8 @@ class SurfaceScore:
     """Share of the reconstructed points whose pixel does not show the foam (fingers, palm, background)."""
     cost_ms: float = 0.0
     """What scoring this frame cost (render + distances + coverage)."""
+    point_error_mm: NDArray[np.float64] | None = None
+    """Each reconstructed point's distance to the true surface, in the points' order (for colouring)."""
 
 
 # ------------------------------------------------------------------------------ the true surface
@@ -247,6 +249,7 @@ def score_against(
         visible_px=int(truth.visible.sum()),
         outside_fraction=outside if len(px) else 0.0,
         cost_ms=1e3 * (time.perf_counter() - t0),
+        point_error_mm=dist_mm,
     )
 
 

@@ -29,6 +29,10 @@ DEPTH_ENTITY = f"{RECTIFIED_ENTITY}/depth"
 CLOUD_ENTITY = f"{STEREO_ENTITY}/cloud"
 MESH_ENTITY = f"{STEREO_ENTITY}/mesh"
 FUSED_CLOUD_ENTITY = f"{HAND_ENTITY}/fused/cloud"
+POINT_ERROR_SCALE_MM = 5.0
+"""Sim camera runs colour the stereo points by their distance to the true surface, green at 0 through
+yellow to red at this many mm and beyond (the stereo bar is a 1.5 mm median: issue 21)."""
+POINT_ERROR_COLORMAP = "RdYlGn_r"
 FUSED_MESH_ENTITY = f"{HAND_ENTITY}/fused/mesh"
 TACTILE_POINTS_ENTITY = f"{HAND_ENTITY}/tactile_contacts"
 TACTILE_ENTITY = "tactile"
@@ -156,8 +160,8 @@ def _plot(name: str, paths: Sequence[str], **kwargs: object) -> rrb.TimeSeriesVi
 
 def scene_view(kind: RunKind) -> rrb.Spatial3DView:
     """The hand and the foam, z up, the eye in front of the palm looking at the foam. In camera runs one
-    cloud (the stereo points) and one mesh (the fused surface) are on; the stereo mesh, the fused cloud
-    and the depth image's own back-projection are listed but hidden."""
+    cloud (the stereo points: coloured by their error to the truth in sim runs) and one mesh (the fused
+    surface) are on; the stereo mesh, the fused cloud and the depth image's back-projection are hidden."""
     target = np.array(kind.eye_target_m or DEFAULT_EYE_TARGET_M, dtype=float)
     eye = rrb.EyeControls3D(
         kind=rrb.Eye3DKind.Orbital,
@@ -171,9 +175,10 @@ def scene_view(kind: RunKind) -> rrb.Spatial3DView:
             f"/{p}": rrb.EntityBehavior(visible=False)
             for p in (MESH_ENTITY, FUSED_CLOUD_ENTITY, DEPTH_ENTITY)
         }
-    return rrb.Spatial3DView(
-        name="hand and foam (m, z up)", origin="/world", eye_controls=eye, overrides=hidden
-    )
+    name = "hand and foam (m, z up)"
+    if kind.stereo and kind.sim:
+        name += f"; stereo points by error to the truth: green 0 to red >= {POINT_ERROR_SCALE_MM:g} mm"
+    return rrb.Spatial3DView(name=name, origin="/world", eye_controls=eye, overrides=hidden)
 
 
 def hand_views(kind: RunKind) -> list[rrb.View]:

@@ -49,6 +49,8 @@ from twin.viz.blueprint import (
     HAND_ENTITY,
     LOG_ENTITY,
     MESH_ENTITY,
+    POINT_ERROR_COLORMAP,
+    POINT_ERROR_SCALE_MM,
     RECTIFIED_ENTITY,
     SERIES_STYLE,
     STEREO_ENTITY,
@@ -689,8 +691,12 @@ class RunRecording:
         *,
         jpeg_quality: int | None = JPEG_QUALITY,
         cloud_stride: int = 1,
+        point_error_mm: ArrayLike | None = None,
     ) -> None:
         """One stereo frame at sim time t_s: both images, and what the vision made of them.
+
+        `point_error_mm` (sim runs: each reconstructed point's distance to the true surface) colours the
+        stereo points by their error (POINT_ERROR_SCALE_MM) instead of the image's colours.
 
         `cloud_stride`: log the coloured points of every n-th pixel row and column only (n^2 fewer;
         the largest part of a stereo frame in the .rrd).
@@ -728,6 +734,10 @@ class RunRecording:
             colors = np.asarray(r.colors, dtype=np.uint8).reshape(-1, 3)
             pixels = np.asarray(r.pixels).reshape(-1, 2)
             on_grid = ((pixels % cloud_stride) == 0).all(axis=1)  # the depth image keeps every point
+            if point_error_mm is not None:
+                errors = np.asarray(point_error_mm, dtype=float).reshape(-1)
+                if len(errors) == len(points):
+                    colors = error_colors(errors)
             self.rec.log(CLOUD_ENTITY, rr.Points3D(points[on_grid], colors=colors[on_grid], radii=0.0006))
             used, faces = _compact_mesh(_short_triangles(points, np.asarray(r.triangles).reshape(-1, 3)))
             if len(faces):  # the per-frame pipeline meshes only the fused cloud: no empty mesh each frame
@@ -924,6 +934,14 @@ def _depth_units(disparity: np.ndarray, mask: np.ndarray, q23: float, q32: float
     units = z_mm / DEPTH_MM_PER_UNIT
     ok = np.asarray(mask, dtype=bool) & np.isfinite(units) & (units > 0) & (units < 65535)
     return np.where(ok, np.rint(units), 0).astype(np.uint16)
+
+
+def error_colors(error_mm: ArrayLike, scale_mm: float = POINT_ERROR_SCALE_MM) -> np.ndarray:
+    """RGB (uint8) for distances to the truth: POINT_ERROR_COLORMAP over 0..scale_mm, clipped above."""
+    from matplotlib import colormaps
+
+    fraction = np.clip(np.asarray(error_mm, dtype=float) / scale_mm, 0.0, 1.0)
+    return (255 * colormaps[POINT_ERROR_COLORMAP](fraction)[:, :3]).astype(np.uint8)
 
 
 def _short_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:

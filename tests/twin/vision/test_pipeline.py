@@ -180,3 +180,27 @@ def test_hardware_cameras_without_a_box_are_refused_before_anything_is_written(t
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--bbox" in lines[0], result.stderr
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_the_viewer_colours_the_stereo_points_by_their_error_to_the_truth(camera_run: Path):
+    """Sim camera runs: every stereo cloud in the .rrd is coloured by each point's distance to the true
+    surface (not by the image). Read back through the colour map, the points' median error is the
+    frame's recorded stereo_truth median (the .rrd keeps every 2nd row and column of the cloud)."""
+    from twin.viz.rerun_log import CLOUD_ENTITY, POINT_ERROR_SCALE_MM, error_colors, read_rrd_points
+
+    lut_mm = np.linspace(0.0, POINT_ERROR_SCALE_MM, 501)
+    lut = error_colors(lut_mm).astype(int)
+    truth = open_run(camera_run).stream("stereo_truth")
+    clouds = read_rrd_points(camera_run / "run.rrd", CLOUD_ENTITY)
+    assert len(clouds) >= 30
+    for t, points, colors in clouds:
+        assert len(points) == len(colors) > 500
+        rgb = colors[:, :3].astype(int)
+        distance = np.abs(rgb[:, None, :] - lut[None, :, :]).sum(axis=2)
+        assert distance.min(axis=1).max() <= 3, "a point's colour is not on the error scale"
+        error_mm = lut_mm[distance.argmin(axis=1)]
+        k = int(np.argmin(np.abs(truth.t_s - t)))
+        assert abs(truth.t_s[k] - t) < 1e-6, "a cloud was logged for a frame that was not scored"
+        median = truth["median_mm"][k]
+        assert np.median(error_mm) == pytest.approx(median, abs=0.1 + 0.15 * median)

@@ -57,8 +57,12 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
     kind = KINDS[name]
     path = _saved(tmp_path, kind)
     views = read_rrd_views(path)
-    scene = views["hand and foam (m, z up)"]
-    assert scene["kind"] == "3D" and scene["origin"] == "/world"
+    scenes = [v for t, v in views.items() if t.startswith("hand and foam (m, z up)")]
+    assert len(scenes) == 1 and scenes[0]["kind"] == "3D" and scenes[0]["origin"] == "/world"
+    coloured_by_error = "stereo points by error to the truth: green 0 to red >= 5 mm"
+    assert (coloured_by_error in next(t for t in views if t.startswith("hand and foam"))) == (
+        kind.stereo and kind.sim
+    )
     position = views["finger position (counts), command light: F1 red, F2 blue, F3 green"]
     assert position["contents"] == ["/plots/hand/position_counts", "/plots/command/position_counts"]
     for title in (

@@ -24,8 +24,9 @@ ray from the contour's centroid straight up the image, -v, crosses it) and runni
 on screen. Fixed n and anchor make contours comparable sample by sample, which is what a network
 regressing 2n outputs needs.
 
-In the hand frame, each contour pixel's ray from the rectified left camera is cut with a plane
-parallel to the palm (the silhouette of a top-down view lies near the object's widest section).
+In millimetres, each contour pixel's ray from the rectified left camera is cut with the plane through
+the object's centre square to the camera's axis (the silhouette lies near the object's widest section
+as the camera sees it), in the image's right and up directions: the palm's (x, y) from above.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import gaussian_filter
 from skimage.measure import find_contours
 
@@ -199,11 +200,20 @@ def contour_error_px(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     return float(np.mean(np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1)))
 
 
-def to_hand_plane(
-    contour_px: NDArray[np.float64], rectifier: Rectifier, plane_z_m: float
+def view_from_hand(rectifier: Rectifier) -> NDArray[np.float64]:
+    """3 x 3: rows the rectified left camera's image right, image up and its direction toward the
+    camera (minus its optical axis), in the hand frame: the frame contours and height maps use."""
+    rot = rectifier.hand_from_rectified[:3, :3]
+    return np.vstack([rot[:, 0], -rot[:, 1], -rot[:, 2]])  # OpenCV camera: y down, z forward
+
+
+def to_view_plane(
+    contour_px: NDArray[np.float64], rectifier: Rectifier, centre_m: ArrayLike
 ) -> NDArray[np.float64]:
-    """(n, 3) hand-frame points (m) where the rectified-left rays through the pixels meet the plane
-    z = plane_z_m of the hand frame (parallel to the palm)."""
+    """(n, 2) metres: where the rectified-left rays through the pixels meet the plane through `centre_m`
+    (hand frame: the object's centre) square to the camera's optical axis, as (image right, image up)
+    from the centre. One rule for every placement of the pair: from straight above it is the palm's
+    (x, y); from the side, a section through the object's centre as the camera sees it."""
     px = np.asarray(contour_px, dtype=np.float64)
     p1 = rectifier.P1
     rays_rect = np.column_stack(
@@ -211,15 +221,20 @@ def to_hand_plane(
     )
     hand_from_rect = rectifier.hand_from_rectified
     rot, origin = hand_from_rect[:3, :3], hand_from_rect[:3, 3]
+    right, up, toward = view_from_hand(rectifier)
+    axis = -toward
+    centre = np.asarray(centre_m, dtype=np.float64).reshape(3)
     rays = rays_rect @ rot.T
-    t = (plane_z_m - origin[2]) / rays[:, 2]
-    return origin + t[:, None] * rays
+    t = ((centre - origin) @ axis) / (rays @ axis)
+    offset = origin + t[:, None] * rays - centre
+    return np.column_stack([offset @ right, offset @ up])
 
 
 @dataclass(frozen=True)
 class Contour:
     """One frame's contours, resampled, in pixels (rectified left) and, where a plane is given, in
-    hand-frame mm: the largest visible piece's outline, and the hull of all pieces."""
+    mm on the view plane through the object's centre (to_view_plane): the largest visible piece's outline,
+    and the hull of all pieces."""
 
     pixels: NDArray[np.float64]
     hand_mm: NDArray[np.float64] | None
@@ -274,6 +289,7 @@ class ContourExtractor:
         hull_pixels = resample(hull(pieces), self.points)
         hand = hull_hand = None
         if self.plane_z_m is not None:
-            hand = 1e3 * to_hand_plane(pixels, self.rectifier, self.plane_z_m)[:, :2]
-            hull_hand = 1e3 * to_hand_plane(hull_pixels, self.rectifier, self.plane_z_m)[:, :2]
+            centre = (0.0, 0.0, self.plane_z_m)  # on the palm's axis, at the object's mid-height
+            hand = 1e3 * to_view_plane(pixels, self.rectifier, centre)
+            hull_hand = 1e3 * to_view_plane(hull_pixels, self.rectifier, centre)
         return Contour(pixels=pixels, hand_mm=hand, hull_pixels=hull_pixels, hull_mm=hull_hand)

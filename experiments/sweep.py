@@ -215,9 +215,11 @@ class _SimSurface:
     def first_left(self) -> NDArray[np.uint8]:
         """The object at rest: lay the grid on its fused cloud; its left view starts the contour tracker."""
         from twin.shape.surface import grid_from_cloud
+        from twin.vision.contour import view_from_hand
 
         frame = self.backend.stereo.read()
-        self.grid = grid_from_cloud(self.pipeline.process(frame).fused.points_hand)
+        view = view_from_hand(self.pipeline.rectifier)
+        self.grid = grid_from_cloud(self.pipeline.process(frame).fused.points_hand, view_from_hand=view)
         return frame.left
 
     def read_left(self) -> NDArray[np.uint8]:
@@ -247,7 +249,7 @@ def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) ->
     from twin.recording.reader import Run
     from twin.shape.surface import grid_from_cloud, height_map
     from twin.vision.calibration import StereoCalibration
-    from twin.vision.contour import ContourError, ContourExtractor
+    from twin.vision.contour import ContourError, ContourExtractor, view_from_hand
     from twin.vision.pipeline import decode_jpeg
     from twin.vision.reconstruct import Rectifier
 
@@ -274,7 +276,8 @@ def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) ->
     rows = _new_rows(surface=True)
     del rows["surface_truth_mm"]  # a recorded run knows no true surface
     try:  # the grid on the first frame's fused cloud; without one, the run gives contours only
-        grid = grid_from_cloud(np.asarray(stereo["points_m"][0]).reshape(-1, 3))
+        first_cloud = np.asarray(stereo["points_m"][0]).reshape(-1, 3)
+        grid = grid_from_cloud(first_cloud, view_from_hand=view_from_hand(rectifier))
     except ConfigError:
         grid = None
         del rows["surface_mm"]

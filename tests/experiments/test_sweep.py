@@ -162,8 +162,10 @@ def test_a_surface_sweep_keeps_heights_near_the_true_surface_and_trains_the_3d_v
             heights, truth = d["surface_mm"], d["surface_truth_mm"]
             assert heights.shape == truth.shape == (n, 100)
             both = np.isfinite(heights) & np.isfinite(truth)
-            assert both.sum() > 5 * n  # the block's top, where the fingers leave it in view
-            assert np.median(np.abs(heights - truth)[both]) < 1.0  # mm
+            # the foam where the fingers leave it in view: ~42 of 100 cells a frame from the paper's
+            # lateral view (8 from the top), their heights 0.37 mm from the true surface (median)
+            assert both.sum() > 20 * n
+            assert np.median(np.abs(heights - truth)[both]) < 0.6  # mm
             assert json.loads(str(d["surface_grid"]))["cells"] == 10
     capsys.readouterr()
     argv = [

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
-from twin.shape.surface import SurfaceGrid
+from twin.shape.surface import TOP_VIEW, SurfaceGrid
 
 INPUTS = ("p1_counts", "p2_counts", "p3_counts", "T1_nm", "T2_nm", "T3_nm")
 CONTOUR_TARGETS = {"largest": ("contour_px", "contour_mm"), "hull": ("hull_px", "hull_mm")}
@@ -89,8 +89,14 @@ def load_surface_dataset(directory: Path | str, object_name: str) -> SurfaceData
     for x, d, k in _trajectories(Path(directory), object_name, ("surface_mm",)):
         truth = d["surface_truth_mm"] if "surface_truth_mm" in d else np.full_like(d["surface_mm"], np.nan)
         parts.append((x, d["surface_mm"], truth, k))
+        spec = d["surface_grid"]
+        view = spec.get("view_from_hand")  # absent in datasets swept from the top before it was recorded
         grids[int(k[0])] = SurfaceGrid(
-            **{**d["surface_grid"], "centre_mm": tuple(d["surface_grid"]["centre_mm"])}
+            **{
+                **spec,
+                "centre_mm": tuple(spec["centre_mm"]),
+                "view_from_hand": TOP_VIEW if view is None else tuple(tuple(row) for row in view),
+            }
         )
     cells = {p[1].shape[1] for p in parts}
     if len(cells) > 1:

@@ -4,7 +4,7 @@ Rig (hardware_facts §5, paper §4): the cameras are `BASELINE_M` apart, each to
 `VERGENCE_DEG` so the optical axes cross at `TARGET_M` (on the palm axis, mid-height of the foam), 386 mm
 from each camera. Where the pair stands is data (`CameraPlacement`, named in `PLACEMENTS`): the paper's
 lateral view (from the palm's +x side, 30 deg above the palm plane, where the fingers leave the
-object in view) or straight down on the palm (`top`, image up = the palm's +y; DEFAULT_PLACEMENT).
+object in view; DEFAULT_PLACEMENT) or straight down on the palm (`top`, image up = the palm's +y).
 Frames are rendered at 320x240 (or at the native 640x480 and area-averaged), then noised.
 
 Conventions for the calibration are OpenCV's (twin.vision.calibration): a MuJoCo camera looks along
@@ -80,11 +80,11 @@ PLACEMENTS: dict[str, CameraPlacement] = {
 """Named placements: `top` looks straight down on the palm-up hand (image up = the palm's +y, toward
 F3); `lateral` is the paper's view (§4, Fig. 1b): from the side where F1/F2 and F3 leave a gap, 30 deg
 above the palm plane, so the object shows beside the closing fingers."""
-DEFAULT_PLACEMENT = "top"
-"""The scene's placement when none is given. The study (BENCHMARKS.md, stereo_pipeline) favours
-`lateral` for the reconstruction (every library foam within targets vs 1-2 of 5 from the top); it is
-not the default yet because the shape pipeline's contours (twin.vision.contour's plane projection,
-experiments/sweep.py --from-runs, the trained shape models) assume the top view."""
+DEFAULT_PLACEMENT = "lateral"
+"""The scene's placement when none is given: the paper's. The study (BENCHMARKS.md, stereo_pipeline)
+puts every library foam within the reconstruction's targets from `lateral` against 2 of 5 from the
+top. The shape pipeline's contours (twin.vision.contour.to_view_plane) and height maps
+(twin.shape.surface) work in the pair's own view frame, from its calibration: any placement."""
 
 
 def _up_hint(forward: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -71,8 +71,10 @@ def test_frames_match_the_twins_own_render_of_the_same_state(hand):
         for side in ("left", "right"):
             got = getattr(frame, side).astype(np.int16)
             other = views["right" if side == "left" else "left"]
-            error = np.abs(got - views[side]).mean()  # sensor noise (std 2) and JPEG
-            assert error < 3.0, (side, error)
+            # sensor noise (std 2: 1.6 levels) and JPEG: 3.3 levels measured on the lateral view's edges,
+            # against 44 between the left and right views
+            error = np.abs(got - views[side]).mean()
+            assert error < 4.0, (side, error)
             assert np.abs(got - other).mean() > 3 * error  # the views are not swapped
     assert all(5_000 < size < 40_000 for size in sizes), sizes
 

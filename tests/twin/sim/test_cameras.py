@@ -12,6 +12,7 @@ import pytest
 from twin.interface.errors import ConfigError
 from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
 from twin.sim.cameras import (
+    DEFAULT_PLACEMENT,
     LEFT_CAMERA,
     PLACEMENTS,
     RIGHT_CAMERA,
@@ -20,6 +21,7 @@ from twin.sim.cameras import (
     SimStereo,
     add_stereo_cameras,
     ground_truth_calibration,
+    placement_axes,
     stereo_camera_poses,
 )
 from twin.sim.foam import get_object
@@ -165,8 +167,16 @@ def test_calibration_geometry_matches_the_rig(world):
     axis_angle = math.degrees(math.acos(np.clip(cal.rotation[2, 2], -1, 1)))
     assert axis_angle == pytest.approx(30.0, abs=3.0)
     np.testing.assert_allclose(cal.rotation @ cal.rotation.T, np.eye(3), atol=1e-9)
-    # The default placement, above the palm looking down: the left optical axis points to -z of the hand.
-    assert cal.hand_from_left[2, 3] > 0.3 and cal.hand_from_left[2, 2] < -0.9
+    # The default placement: the left camera 386 mm from the target (on the palm axis at the foam's
+    # mid-height), its optical axis through the target, toed in by half the vergence from the pair's
+    # direction (placement_axes); in the hand frame, as the calibration reports it.
+    origin, axis = cal.hand_from_left[:3, 3], cal.hand_from_left[:3, 2]
+    to_target = np.asarray(TARGET_M) - origin
+    assert np.linalg.norm(to_target) == pytest.approx(0.386, abs=0.005)
+    assert math.degrees(math.acos(axis @ to_target / np.linalg.norm(to_target))) < 0.5
+    toward = placement_axes(PLACEMENTS[DEFAULT_PLACEMENT])[2]
+    toe_in = math.degrees(math.acos(-axis @ toward))
+    assert toe_in == pytest.approx(15.0, abs=0.5)
     k = cal.left.matrix
     assert cal.left.image_size == (320, 240)
     assert k[0, 0] == k[1, 1] == pytest.approx(CONFIG.focal_px)

@@ -93,22 +93,24 @@ CONTACT_ARROW_M_PER_N = 0.004
 CAMERA_SIDES = ("left", "right")
 CONTOUR_RGB = {"predicted": (230, 60, 200), "measured": (40, 220, 90)}
 """The shape network's contour in magenta, the camera's in green."""
-JPEG_QUALITY = 85
-"""Camera images are logged JPEG-compressed: ~10 KB a 320x240 view instead of 230 KB raw."""
+JPEG_QUALITY = 80
+"""Camera images are logged JPEG-compressed: ~11 kB a 320x240 view of the lateral pair instead of
+230 kB raw, 1.9 grey levels from the frame on average (85: 13.7 kB and 1.2 levels; the cameras' own
+noise is 2)."""
 DEPTH_MM_PER_UNIT = 0.1
 """Depth images are uint16 in units of 0.1 mm (0 = no depth), good to 6.5 m, logged PNG-compressed."""
 CAMERA_PLANE_M = 0.05
 """Where the viewer draws each camera's image plane, in front of its centre."""
-IMAGE_PERIOD_S = 1 / 15
-"""Camera images go to the .rrd at 15 fps (every other frame of the 30 fps pair): at 9 kB a JPEG they
-were 60 % of a camera run's recording. Every frame stays in the run's stereo stream (left_jpeg,
-right_jpeg)."""
+IMAGE_PERIOD_S = 0.1
+"""Camera images and the depth go to the .rrd at 10 fps (every third frame of the 30 fps pair): from
+the paper's lateral view a JPEG is ~11 kB, and at 15 fps they were a third of a camera run's
+recording. Every frame stays in the run's stereo stream (left_jpeg, right_jpeg)."""
 PERIOD_SLACK_S = 0.01
 """Frame times sit on the simulator's step grid (2 ms): two frames of a 30 fps pair may be 66 ms apart."""
-SURFACE_PERIOD_S = 0.1
-"""Clouds and meshes of the stereo reconstruction go to the .rrd at 10 Hz (images and depth at the
-camera's 30 fps): they were two thirds of a camera run's recording, and 10 updates a second follow a
-0.5 Hz squeeze smoothly."""
+SURFACE_PERIOD_S = 0.2
+"""Clouds and meshes of the stereo reconstruction go to the .rrd at 5 Hz: from the lateral view the
+fused mesh alone was a quarter of a camera run's recording at 10 Hz, and 10 updates per cycle follow
+the 0.5 Hz squeeze. Every frame's fused cloud and mesh stay in the run's stereo stream."""
 MAX_EDGE_FACTOR = 4.0
 """A triangle whose longest edge exceeds this many times the mesh's median edge joins points that are
 not neighbours on the surface (a finger's edge behind the foam): it is not drawn."""
@@ -713,10 +715,10 @@ class RunRecording:
             self._last_image_s = float(t_s)
             for side, image in (("left", left), ("right", right)):
                 self.rec.log(f"{STEREO_ENTITY}/{side}/image", _image(image, jpeg_quality))
-        if reconstruction is not None and self._depth_from_disparity is not None:
-            r = reconstruction
-            depth = _depth_units(r.disparity, r.mask, *self._depth_from_disparity)
-            self.rec.log(f"{RECTIFIED_ENTITY}/depth", _png_depth(depth))
+            if reconstruction is not None and self._depth_from_disparity is not None:
+                r = reconstruction  # the depth with the images it came from
+                depth = _depth_units(r.disparity, r.mask, *self._depth_from_disparity)
+                self.rec.log(f"{RECTIFIED_ENTITY}/depth", _png_depth(depth))
         if tactile_points_hand is not None:
             tactile = np.asarray(tactile_points_hand, dtype=np.float32).reshape(-1, 3)
             self.rec.log(

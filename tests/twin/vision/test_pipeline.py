@@ -193,7 +193,7 @@ def test_the_viewer_colours_the_stereo_points_by_their_error_to_the_truth(camera
     lut = error_colors(lut_mm).astype(int)
     truth = open_run(camera_run).stream("stereo_truth")
     clouds = read_rrd_points(camera_run / "run.rrd", CLOUD_ENTITY)
-    assert len(clouds) >= 30
+    assert len(clouds) >= 15  # 4 s at 5 Hz
     for t, points, colors in clouds:
         assert len(points) == len(colors) > 100
         rgb = colors[:, :3].astype(int)

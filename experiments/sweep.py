@@ -137,7 +137,7 @@ def _run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
     from twin.sim.cameras import LEFT_CAMERA
     from twin.sim.foam import get_object
     from twin.units import strain_to_torque_nm
-    from twin.vision.contour import ContourError, ContourExtractor
+    from twin.vision.contour import ContourError, ContourExtractor, view_from_hand
     from twin.vision.reconstruct import Rectifier
 
     path = Path(out_dir) / f"{trajectory.name}.npz"
@@ -183,7 +183,9 @@ def _run_trajectory(trajectory: Trajectory, out_dir: str) -> dict:
                 heights, truth = surface.heights()
                 rows["surface_mm"].append(heights)
                 rows["surface_truth_mm"].append(truth)
-        extra = {} if surface is None else {"surface_grid": json.dumps(asdict(surface.grid))}
+        extra = {"view_from_hand": json.dumps(view_from_hand(rectifier).tolist())}
+        if surface is not None:
+            extra["surface_grid"] = json.dumps(asdict(surface.grid))
     finally:
         backend.disconnect()
     return _entry(trajectory, path, _save(path, rows, trajectory, **extra), lost)
@@ -312,7 +314,9 @@ def trajectory_from_run(run_dir: Path | str, out_dir: Path, points: int = 32) ->
     )
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{trajectory.name}.npz"
-    extra = {} if grid is None else {"surface_grid": json.dumps(asdict(grid))}
+    extra = {"view_from_hand": json.dumps(view_from_hand(rectifier).tolist())}
+    if grid is not None:
+        extra["surface_grid"] = json.dumps(asdict(grid))
     saved = _save(path, rows, trajectory, run=str(run.path), **extra)
     entry = _entry(trajectory, path, saved, lost) | {"run": str(run.path)}
     index_entries = {e["file"]: e for e in read_index(out_dir)} | {entry["file"]: entry}

@@ -116,6 +116,10 @@ def run_experiment(
                 f"--bbox {x},{y},{w},{h}: not a non-empty box inside the {width}x{height} image"
             )
     tactile_calibration, stereo_pipeline = _load_run_files(backend, stereo_box)
+    if shape_model is not None and stereo_pipeline is not None:
+        from twin.vision.contour import view_from_hand
+
+        shape_model.check_view(view_from_hand(stereo_pipeline.rectifier))
     check_output_dir(run_dir)
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())

@@ -205,6 +205,9 @@ def test_train_cross_validates_by_trajectory_and_keeps_a_hull_model_trained_on_a
     assert all(np.isfinite(r["error_px"]) and r["error_px"] > 0 for r in report["held_out"])
     meta = json.loads((model_dir / "model.json").read_text())
     assert meta["target"] == "hull" and meta["cross_validation"]["folds"] == report["folds"]
+    # the cameras' view the contours were traced in (the default, lateral: 30 deg above the palm plane)
+    toward = np.asarray(meta["view_from_hand"])[2]
+    assert np.degrees(np.arcsin(toward[2])) == pytest.approx(30.0, abs=5.0)
     for argv, message in (
         (["--folds", "1"], "argument --folds: must be an integer >= 2"),
         (["--folds", "0"], "argument --folds: must be an integer >= 2"),

@@ -90,10 +90,13 @@ def train_shape_network(
         if folds is not None:
             raise ConfigError("--folds: the 3-D variant is scored on one held-out split (--validation F)")
         return _train_surface(dataset, object_name, out_dir, metadata, epochs, validation, seed)
-    from twin.shape.dataset import load_dataset
+    from twin.shape.dataset import dataset_view, load_dataset
     from twin.shape.train import FOLDS, cross_validate, fold_groups, train
 
     data = load_dataset(dataset, object_name, target)
+    view = dataset_view(dataset, object_name)
+    if view is not None:  # the cameras' side: `--predict` refuses a run seen from another
+        metadata["view_from_hand"] = view
     if validation is None:
         folds = min(FOLDS, len(set(data.trajectory.tolist()))) if folds is None else folds
         fold_groups(data, folds, seed)  # a bad fold count fails here, in one line, before any training

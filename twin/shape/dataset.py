@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
 from twin.shape.surface import TOP_VIEW, SurfaceGrid
+from twin.vision.contour import VIEW_TOLERANCE_DEG
 
 INPUTS = ("p1_counts", "p2_counts", "p3_counts", "T1_nm", "T2_nm", "T3_nm")
 CONTOUR_TARGETS = {"largest": ("contour_px", "contour_mm"), "hull": ("hull_px", "hull_mm")}
@@ -103,6 +104,24 @@ def load_surface_dataset(directory: Path | str, object_name: str) -> SurfaceData
         raise ConfigError(f"{directory}: trajectories of '{object_name}' use different surface grids {cells}")
     x, h, t, traj = (np.concatenate(p) for p in zip(*parts, strict=True))
     return SurfaceData(x, h, t, traj.astype(np.int64), grids)
+
+
+def dataset_view(directory: Path | str, object_name: str) -> list[list[float]] | None:
+    """The view frame the object's trajectories were seen in (twin.vision.contour.view_from_hand; None
+    for datasets that did not record it); ConfigError when they were seen from different sides."""
+    views = []
+    for _, arrays, _ in _trajectories(Path(directory), object_name, ()):
+        if "view_from_hand" in arrays:
+            views.append(np.asarray(json.loads(str(arrays["view_from_hand"])), dtype=np.float64))
+    if not views:
+        return None
+    spread = max(float(np.degrees(np.arccos(np.clip(v[2] @ views[0][2], -1.0, 1.0)))) for v in views)
+    if spread > VIEW_TOLERANCE_DEG:
+        raise ConfigError(
+            f"{directory}: the trajectories of '{object_name}' were seen from cameras {spread:.0f} deg "
+            "apart; a contour model learns one view: sweep them with the cameras in one place"
+        )
+    return views[0].tolist()
 
 
 def _trajectories(

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
 from twin.validation import check_number
+from twin.vision.contour import VIEW_TOLERANCE_DEG
 
 HIDDEN = 30
 WEIGHTS_FILE = "model.pt"
@@ -70,6 +71,24 @@ class ShapeModel:
     def target(self) -> str:
         """What it predicts: "largest" or "hull" (contours), or "surface" (heights)."""
         return str(self.metadata.get("target", "largest"))
+
+    def check_view(self, view_from_hand: NDArray[np.float64]) -> None:
+        """ConfigError (one line) when the cameras look at the hand from another side than those whose
+        contours the model learned (metadata "view_from_hand": twin.vision.contour.view_from_hand):
+        its pixels would be another view's. Models from datasets that did not record it pass."""
+        trained = self.metadata.get("view_from_hand")
+        if trained is None:
+            return
+        toward_trained, toward = (
+            np.asarray(trained, dtype=float)[2],
+            np.asarray(view_from_hand, dtype=float)[2],
+        )
+        angle = float(np.degrees(np.arccos(np.clip(toward_trained @ toward, -1.0, 1.0))))
+        if angle > VIEW_TOLERANCE_DEG:
+            raise ConfigError(
+                f"--predict: the model learned contours seen from {angle:.0f} deg away from where these "
+                "cameras stand; sweep and train it again with the cameras where they are"
+            )
 
     def _shape(self, batch: tuple[int, ...]) -> tuple[int, ...]:
         return (*batch, self.points) if self.net.dims == 1 else (*batch, self.points, self.net.dims)

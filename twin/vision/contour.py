@@ -200,6 +200,12 @@ def contour_error_px(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     return float(np.mean(np.linalg.norm(np.asarray(a) - np.asarray(b), axis=1)))
 
 
+VIEW_TOLERANCE_DEG = 10.0
+"""Views whose toward-the-cameras directions lie this close count as one (a rig re-mounted a little):
+a contour model serves runs from its training data's view only. The paper's lateral view is 60 deg
+from the top view."""
+
+
 def view_from_hand(rectifier: Rectifier) -> NDArray[np.float64]:
     """3 x 3: rows the rectified left camera's image right, image up and its direction toward the
     camera (minus its optical axis), in the hand frame: the frame contours and height maps use."""

@@ -1,6 +1,8 @@
 """`twin run compress --predict MODEL`: the contour predicted from every hand reading is recorded and
 drawn beside the camera's, and a model is checked before any run starts."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -74,3 +76,35 @@ def test_a_model_that_is_not_one_or_for_another_object_is_refused_before_the_run
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err and not out.exists()
+
+
+def test_a_model_from_another_camera_view_is_refused_before_the_run(tmp_path, capsys):
+    """A model learned from top-view contours, on a run whose cameras stand at the paper's lateral view
+    (the default), would predict another view's pixels: one line, exit 2, nothing written. The same
+    model with the view its sweep records for these cameras passes the check."""
+    from twin.shape.surface import TOP_VIEW
+    from twin.sim.backend import SimBackend
+    from twin.sim.foam import get_object
+    from twin.vision.contour import view_from_hand
+    from twin.vision.reconstruct import Rectifier
+
+    def saved(view, name):
+        return ShapeModel(
+            net=ShapeMLP(16),
+            x_mean=np.zeros(6),
+            x_std=np.ones(6),
+            y_mean=np.zeros(32),
+            y_std=np.ones(32),
+            metadata={"object": "sphere", "view_from_hand": view},
+        ).save(tmp_path / name)
+
+    out = tmp_path / "never"
+    argv = ["run", "compress", "--object", "sphere", "--cameras", "--out", str(out), "--no-progress"]
+    assert main([*argv, "--predict", str(saved([list(row) for row in TOP_VIEW], "top"))]) == 2
+    err = capsys.readouterr().err
+    angle = re.search(r"seen from (\d+) deg away from where these cameras stand", err)
+    assert err.count("\n") == 1 and angle and 55 <= int(angle.group(1)) <= 65 and "Traceback" not in err
+    assert not out.exists()
+    backend = SimBackend(get_object("sphere"), stereo=True)
+    lateral = view_from_hand(Rectifier(backend.stereo.calibration()))
+    ShapeModel.load(saved(lateral.tolist(), "lateral")).check_view(lateral)  # passes

@@ -35,20 +35,22 @@ def emulated_rig_with_cameras(tmp_path: Path):
 
 
 def _emulate_rig(tmp_path: Path, *extra: str):
-    rig_file = tmp_path / "rig.toml"
-    proc = subprocess.Popen(
-        [*TWIN, "emulate", "rig", "--port", "pty", "--rig-file", str(rig_file), "--duration", "120", *extra],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    lines = []
-    for line in proc.stdout:
-        lines.append(line)
-        if line.startswith("ready"):
-            break
-    assert any(line.startswith("hand: /dev/") for line in lines), lines
-    assert any(line.startswith("tactile: /dev/") for line in lines), lines
+    """The emulator's output goes to a file (nothing blocks on a full pipe) and is printed at teardown:
+    pytest shows it with a failing test, so a port lost mid-run says what the emulator saw."""
+    rig_file, log = tmp_path / "rig.toml", tmp_path / "emulator.log"
+    with log.open("w") as out:
+        argv = ["emulate", "rig", "--port", "pty", "--rig-file", str(rig_file), "--duration", "120", *extra]
+        proc = subprocess.Popen(
+            [*TWIN, *argv],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+    deadline = time.monotonic() + 120
+    while "hand: /dev/" not in log.read_text() or "\nready" not in log.read_text():
+        assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+        time.sleep(0.1)
+    assert "\ntactile: /dev/" in log.read_text(), log.read_text()
     try:
         yield rig_file
     finally:
@@ -56,6 +58,7 @@ def _emulate_rig(tmp_path: Path, *extra: str):
             proc.send_signal(signal.SIGINT)
         # the emulated hand now opens in the twin's own motion time, which a loaded suite slows
         proc.wait(timeout=60)
+        print(f"--- twin emulate rig ({log}):\n{log.read_text()}")
 
 
 @pytest.mark.slow

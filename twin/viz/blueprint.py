@@ -249,9 +249,7 @@ def identify_views() -> list[rrb.View]:
         overrides = {
             p: rr.SeriesLines(
                 names=[f"F{k} {IDENTIFY_QUANTITIES[q]}"],
-                colors=[lighter(FINGER_RGB[f"F{k}"], a) for a in (0.0,)]
-                if q == "tactile_n"
-                else [lighter(FINGER_RGB[f"F{k}"], 0.45 if q == "gauge_eq4_n" else 0.7)],
+                colors=[lighter(FINGER_RGB[f"F{k}"], {"tactile_n": 0.0, "gauge_eq4_n": 0.45}.get(q, 0.7))],
                 widths=[2.0 if q == "tactile_n" else 1.5],
             )
             for p, q in zip(paths, IDENTIFY_QUANTITIES, strict=True)

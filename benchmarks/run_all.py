@@ -22,6 +22,7 @@ SECTIONS = (
     "serial_cycle",
     "emulator_latency",
     "bridge_under_load",
+    "camera_bridge",
     "tactile_sensors",
     "stereo_calibration",
     "stereo_pipeline",

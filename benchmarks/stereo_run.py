@@ -17,6 +17,7 @@ from pathlib import Path
 
 from experiments.compress import PHASES, CompressController
 from twin.rig import Rig
+from twin.session import RRD_NAME
 from twin.sim.backend import SimBackend
 from twin.sim.foam import DEFAULT_OBJECT, LIBRARY
 from twin.vision.pipeline import StereoPipeline
@@ -39,7 +40,7 @@ def _rig(native: bool, duration_s: float) -> tuple[float, dict[str, float]]:
         backend.disconnect()
 
 
-def _full_run(native: bool, duration_s: float) -> tuple[float, float]:
+def _full_run(native: bool, duration_s: float) -> tuple[float, float, float]:
     import twin.viz.rerun_log  # noqa: F401 - a one-off import, paid at start-up, not per run
     from twin.session import run_experiment
 
@@ -57,7 +58,7 @@ def _full_run(native: bool, duration_s: float) -> tuple[float, float]:
         )
         rtf = duration_s / (time.perf_counter() - t0)
         size_mb = sum(p.stat().st_size for p in run_dir.rglob("*") if p.is_file()) / 1e6
-        return rtf, size_mb / duration_s * 60.0
+        return rtf, size_mb / duration_s * 60.0, (run_dir / RRD_NAME).stat().st_size / 1e6
 
 
 def run(quick: bool = False) -> dict:
@@ -66,7 +67,9 @@ def run(quick: bool = False) -> dict:
     rows = []
     for native in (False, True):
         rig_rtf, samples = _rig(native, duration)
-        full_rtf, mb_per_min = _full_run(native, duration)
+        full_rtf, mb_per_min, rrd_mb = _full_run(native, duration)
+        # the .rrd's growth per minute: a run half as long gives the static part (blueprint, model)
+        rrd_per_min = (rrd_mb - _full_run(native, duration / 2)[2]) / (duration / 2) * 60.0
         rows.append(
             {
                 "render": "640x480 -> 320x240 (--render-native)" if native else "320x240 (default)",
@@ -74,6 +77,7 @@ def run(quick: bool = False) -> dict:
                 "full_rtf": full_rtf,
                 "stereo_frames": samples.get("stereo", 0),
                 "mb_per_min": mb_per_min,
+                "rrd_mb_per_min": rrd_per_min,
             }
         )
     return {"duration_s": duration, "object": DEFAULT_OBJECT, "rows": rows}
@@ -87,15 +91,17 @@ def to_markdown(results: dict) -> str:
         f"Compress on the {results['object']} for {results['duration_s']:g} s of sim time: hand and pads at "
         "30 Hz, the stereo pair rendered at 30 fps, every pair reconstructed and fused with the pads "
         "(`benchmarks/stereo_run.py`). *rig*: nothing written; *full recorded run*: + Arrow streams "
-        "(JPEG frames, fused cloud and mesh) and the Rerun .rrd.",
+        "(JPEG frames, fused cloud and mesh) and the Rerun .rrd. *.rrd*: its growth per minute of run "
+        "(this run against one half as long); the issue that set its size found 79.5 MB per minute.",
         "",
-        "| rendering | stereo frames | rig | full recorded run | run size (MB per minute) |",
-        "|---|---|---|---|---|",
+        "| rendering | stereo frames | rig | full recorded run | run size (MB per minute) "
+        "| .rrd (MB per minute) |",
+        "|---|---|---|---|---|---|",
     ]
     for r in results["rows"]:
         lines.append(
             f"| {r['render']} | {r['stereo_frames']} | {r['rig_rtf']:.2f}x | {r['full_rtf']:.2f}x "
-            f"| {r['mb_per_min']:.0f} |"
+            f"| {r['mb_per_min']:.0f} | {r['rrd_mb_per_min']:.1f} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -83,10 +83,15 @@ def test_check_env_and_the_squeeze_task_on_the_emulated_rig(tmp_path: Path):
         rig = emulator.write_rig_file(tmp_path / "rig.toml")
         env = gym.make("BarrettTwin/SqueezeRig-v0", rig=rig)
         assert env.spec.nondeterministic  # wall time: declared so, and checked for everything else
-        check_env(env.unwrapped, skip_render_check=True)
-        _, info, _ = episode(env)
-        assert info["success"], info
-        obs, _ = env.reset()  # the fingers opened again on the same connection
+        try:
+            check_env(env.unwrapped, skip_render_check=True)
+            _, info, _ = episode(env)
+            assert info["success"], info
+            obs, _ = env.reset()  # the fingers opened again on the same connection
+        except Exception as exc:  # a lost port: say what the emulator saw
+            raise AssertionError(
+                f"emulator: {emulator.hand.failed()}; tactile: {emulator.tactile.failed()}"
+            ) from exc
         assert obs["position_counts"][:3].max() < OPEN_COUNTS
         assert obs["tactile_counts"].max() > 0  # the pads are there, over their own port
         env.close()

@@ -225,8 +225,9 @@ class RealTimeTwin:
         world = self.backend.world
         while not self._stop.is_set():
             start, end = self._quiet
-            if start <= time.monotonic() < end:
-                time.sleep(end - time.monotonic())
+            now = time.monotonic()  # read once: a second read can pass `end` on a loaded machine
+            if start <= now < end:
+                time.sleep(end - now)
                 continue
             target = self.now()
             with self.lock:  # short holds so that the serial thread is never kept waiting long

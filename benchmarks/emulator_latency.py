@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TWIN = [sys.executable, "-m", "twin.cli"]
 HOG = [sys.executable, "-c", "while True: pass"]
 BAUDS = (9600, 38400)
-HOGS = (0, 2)
+HOGS = (0, 2, 4)
 TARGET_LATE_MS = 10.0
 SETUP = (
     "HI",
@@ -176,7 +176,8 @@ def to_markdown(results: dict) -> str:
         "`twin emulate hand` on a pty in its own process; a raw-byte client sends libgripper's RealTime "
         "block (`C` + 3 x LCV + LCT, 6 bytes) and reads the 10-byte reply (LFAP x 4 + LFT). *Late* = "
         "write-to-last-byte time minus the wire time of both (10 bits a byte); it includes the client's "
-        f"own scheduling. *hog*: busy-loop processes beside it ({results['cores']} cores here). Target: "
+        f"own scheduling. *hog*: busy-loop processes beside it ({results['cores']} cores here; 4 hogs "
+        "take more than every core). Target: "
         f"p99 late <= {TARGET_LATE_MS:g} ms with the hog. *> 100 ms*: replies later than libgripper's "
         "read timeout. *emulator p99 / max*: the emulator's own account (its loop summary): how much "
         "later than due it wrote each reply, after reading the block (the time the block waited to be "

@@ -24,12 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2034
+DRAW_SEED = 2035
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
-588 %) and this method (5.7 %, 34.5 %) on the same runs, and this method was kept: a choice made on 2034,
-so it is no longer strictly hidden (docs/identification.md)."""
-FIRST_NOISE_SEED = 7000
+588 %) and the centred bracket (5.7 %, 34.5 %); its worst runs were then studied to build the grasp-matched
+sweep (docs/identification.md). 2035, with noise seeds from 12000, scores the sweep on runs nothing was
+looked at on."""
+FIRST_NOISE_SEED = 12000
 PER_SHAPE = 8
 CANDIDATES = 24
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or

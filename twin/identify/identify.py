@@ -297,3 +297,13 @@ def fingertip_contact(signals: FingerSignals, max_cycles: int | None = None) -> 
     object otherwise is not measuring the same stiffness."""
     window, _ = compression_window(signals, max_cycles)
     return np.mean(signals.reaction_n[window] > CONTACT_FORCE_N, axis=0)
+
+
+def fingertip_shares(signals: FingerSignals, max_cycles: int | None = None) -> NDArray[np.float64]:
+    """(3,) each fingertip's share of the fingertips' summed mean reaction over the compared
+    compression: how the grasp spreads the squeeze over the fingers. It moves with the object's
+    placement and jumps where the grasp settles otherwise (a finger that barely holds), and S with it;
+    the modulus compares only like grasps (twin.sim.modulus)."""
+    window, _ = compression_window(signals, max_cycles)
+    mean = signals.reaction_n[window].mean(axis=0)
+    return mean / mean.sum() if mean.sum() > 0 else np.full(3, math.nan)

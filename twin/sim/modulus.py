@@ -8,11 +8,15 @@ with nothing tuned per shape or size: the twin's mechanics carry the geometry.
    the fingers by up to 40 % but S by a few per cent (docs/identification.md).
 2. The run's procedure (its recorded compress profile) is run again in the twin, closed loop as the
    hand ran it, with the described object at candidate moduli; each simulated run goes through
-   exactly the same code as the real one. S grows with E nearly as a power (S ~ E^0.7-1.0): a first
-   simulation at a reference modulus gives a first estimate, five around it (a factor of 4) the power
-   law, which is inverted (log-log); a second round where the estimate left the bracket.
+   exactly the same code as the real one. S grows with E nearly as a power (S ~ E^0.7-1.0), except
+   where the twin's grasp settles otherwise (a thumb that barely holds, a clutch that held): there S
+   jumps off the power law by up to a factor of 3. A first simulation at a reference modulus gives a
+   first estimate; a sweep of nine moduli around it (a factor of 9) the power law, fitted only to the
+   simulations that grasp the object as the hand did (each fingertip's share of the squeeze, as in
+   the run), near the estimate, and robustly (Tukey's biweight), and inverted at the run's S; a
+   second sweep where the estimate left the first or rested on too few like grasps.
 3. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
-   cycles); the procedure's scatter about the power law (the run's S is one more draw of it); and
+   cycles); the like simulations' scatter about the power law (the run's S is one more draw of it); and
    what the run cannot tell apart, each moved to both ends of its tolerance at the estimate and read
    through the power law as a uniform error of the larger shift: the object's placement on the palm
    (x and y), its size (a primitive's extents; not a mesh's), and its Poisson ratio within the range
@@ -37,7 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from twin.identify.identify import WINDOW_SETTLE_S, fingertip_contact, squeeze_stiffness
+from twin.identify.identify import WINDOW_SETTLE_S, fingertip_contact, fingertip_shares, squeeze_stiffness
 from twin.identify.reaction import IdentificationError
 from twin.identify.signals import MissingStreamError, load_signals
 from twin.interface.errors import ConfigError, SimulationUnstableError
@@ -55,9 +59,9 @@ RANGE_PA = (5e3, 5e5)
 margin; an estimate outside means the object is not such a foam (or the run is not what it says)."""
 REFERENCE_PA = 4e4
 """The first simulation's modulus: a medium foam (twin.sim.foam's library)."""
-BRACKET = (0.5, 0.7, 1.0, 1.4, 2.0)
-"""Moduli simulated around an estimate, as factors: the power law S ~ E^p is fitted to these, and their
-scatter about it is the procedure's own (a factor of 4 smooths over the grasp's jitter in S(E))."""
+BRACKET = tuple(float(f) for f in np.geomspace(1 / 3, 3, 9))
+"""A sweep of moduli around an estimate, as factors (1/3 to 3, nine): wide enough to reach, from a first
+estimate read off a grasp that settled otherwise, the moduli at which the twin grasps as the hand did."""
 CYCLES = 3
 """Compression cycles compared: enough to average the gauges' noise, few enough to be quick."""
 TAIL_S = 2.5
@@ -70,9 +74,23 @@ PLACEMENT_TOLERANCE_M = 0.003
 SIZE_TOLERANCE_M = 0.001
 """A described size is within 1 mm of the object's, every extent (calipers on soft foam)."""
 MIN_POINTS = 3
-"""Moduli of a bracket the twin must grasp for a power law to be fitted (of BRACKET's five)."""
+"""Moduli within a sweep's span the twin must grasp (of BRACKET's nine and any earlier) for a power law."""
 CONTACT_TOLERANCE = 0.2
 """How far a fingertip's contact fraction may lie outside the twin's range (posterior check)."""
+SHARE_TOLERANCE = 0.05
+"""How far (Euclidean, over the three fingertips' shares of the squeeze) a simulation's grasp may lie
+from the closest simulation's and still count fully in the power law; at 0.1 it counts 14 %. A grasp
+that settled otherwise (a finger that barely holds) shifts the shares by 0.1-0.3, and its S off the
+power law by up to a factor of 3 (docs/identification.md)."""
+SWEEPS = 2
+"""Sweeps of BRACKET: a second around the first's estimate (or its likest grasp) when that left the
+sweep or rested on too few like grasps."""
+MIN_LIKE_GRASPS = 2.0
+"""The summed weights of the simulations like the run's grasp that a power law needs."""
+LOCAL_LOG_E = math.log(2.0)
+"""The power law is local: a simulation a factor 2 from the estimate counts 61 %, a factor 4 14 %."""
+SCATTER_FLOOR = 0.02
+"""The smallest scale (in log S) for telling a simulation off the power law: the grasp's own jitter."""
 POISSON_RANGE = (0.2, 0.35)
 """Flexible polyurethane foams (twin.sim.foam's library docstring); the simulations take the middle."""
 
@@ -141,13 +159,48 @@ def describe(foam: FoamParams) -> FoamParams:
     )
 
 
-def run_stiffness(path: Path, cycles: int = CYCLES) -> tuple[float, float, int, np.ndarray]:
-    """S, its 1-sigma, the cycles used and each fingertip's contact fraction, of a recorded run;
-    EstimateError (one line) where it has none."""
+def like_grasp_weights(grasps: np.ndarray, run_shares: np.ndarray) -> np.ndarray:
+    """Each simulation's weight in the power law, by how like the run's its grasp is: a Gaussian kernel
+    (SHARE_TOLERANCE) on the distance between the fingertips' shares of the squeeze, counted from the
+    closest simulation's (the object's unknown placement moves every simulation's shares alike)."""
+    distance = np.linalg.norm(grasps - run_shares, axis=1)
+    return np.exp(-0.5 * ((distance - distance.min()) / SHARE_TOLERANCE) ** 2)
+
+
+def weighted_power_law(
+    log_e: np.ndarray, log_s: np.ndarray, weight: np.ndarray, log_s_run: float
+) -> tuple[float, float, float, np.ndarray]:
+    """log S = p log E + c near where it meets the run's log S: weighted least squares, iterated with
+    the weights times a locality kernel around the estimate (LOCAL_LOG_E) and Tukey's biweight on the
+    residuals, so that a simulation whose grasp settled off the power law (a clutch that held) does
+    not bend it. Returns p, c, the weighted RMS scatter of log S about it (corrected for the two terms
+    fitted, with the weights' effective number of points) and the final weights."""
+    total = weight.copy()
+    for _ in range(8):
+        power, intercept = np.polyfit(log_e, log_s, 1, w=np.sqrt(total))
+        residual = log_s - (power * log_e + intercept)
+        centre = (log_s_run - intercept) / power if power > 0 else float(np.average(log_e, weights=weight))
+        local = np.exp(-0.5 * ((log_e - centre) / LOCAL_LOG_E) ** 2)
+        scale = max(1.4826 * float(np.median(np.abs(residual[weight * local > 0.5]))), SCATTER_FLOOR)
+        u = residual / (4.685 * scale)
+        robust = np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
+        total = weight * local * robust
+        if total.sum() < MIN_LIKE_GRASPS:
+            break
+    power, intercept = np.polyfit(log_e, log_s, 1, w=np.sqrt(total))
+    residual = log_s - (power * log_e + intercept)
+    n_eff = total.sum() ** 2 / (total**2).sum()
+    variance = float((total * residual**2).sum() / total.sum()) * n_eff / max(n_eff - 2.0, 1.0)
+    return float(power), float(intercept), math.sqrt(variance), total
+
+
+def run_stiffness(path: Path, cycles: int = CYCLES) -> tuple[float, float, int, np.ndarray, np.ndarray]:
+    """S, its 1-sigma, the cycles used, each fingertip's contact fraction and each fingertip's share of
+    the squeeze, of a recorded run; EstimateError (one line) where it has none."""
     try:
         signals = load_signals(path)
         s, sigma, used = squeeze_stiffness(signals, cycles)
-        return s, sigma, used, fingertip_contact(signals, used)
+        return s, sigma, used, fingertip_contact(signals, used), fingertip_shares(signals, used)
     except (IdentificationError, MissingStreamError) as exc:
         raise EstimateError(str(exc)) from None
 
@@ -160,10 +213,11 @@ def _init_worker(profile: CompressProfile, duration_s: float, cycles: int) -> No
     _PROCEDURE.update(profile=profile, duration_s=duration_s, cycles=cycles)
 
 
-def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, str]:
-    """S, the fingertips' contact fractions and "" of the run's procedure on a twin holding `foam` (a
-    temporary run, removed after); NaNs and the reason where the twin's own grasp of it fails (the
-    object slips out, the grasp never settles): a missing point, not a verdict on the run."""
+def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, np.ndarray, str]:
+    """S, the fingertips' contact fractions, their shares of the squeeze and "" of the run's procedure
+    on a twin holding `foam` (a temporary run, removed after); NaNs and the reason where the twin's own
+    grasp of it fails (the object slips out, the grasp never settles): a missing point, not a verdict
+    on the run."""
     from experiments.compress import run_compress
     from twin.sim.backend import SimBackend
 
@@ -176,11 +230,12 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, str]:
             object_name=foam.name,
             profile=_PROCEDURE["profile"],
         )
-        s, _, _, contact = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
-        return s, contact, ""
+        s, _, _, contact, shares = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
+        return s, contact, shares, ""
     except EstimateError as exc:  # the scratch run's path means nothing to the user: say what failed
         reason = str(exc).removeprefix(f"{scratch / 'run'}: ")
-        return math.nan, np.full(3, math.nan), f"at E = {foam.young_pa / 1e3:.3g} kPa: {reason}"
+        nan = np.full(3, math.nan)
+        return math.nan, nan, nan, f"at E = {foam.young_pa / 1e3:.3g} kPa: {reason}"
     except SimulationUnstableError as exc:
         raise EstimateError(f"simulating E = {foam.young_pa / 1e3:.3g} kPa: {exc}") from None
     finally:
@@ -230,20 +285,20 @@ def estimate_modulus(
     run = Run(run_path)
     check_run_metadata(run.info, run.path / "run.json")
     profile = _profile(run)
-    measured, measured_sigma, cycles, contact = run_stiffness(run.path)
+    measured, measured_sigma, cycles, contact, shares = run_stiffness(run.path)
     base = describe(description if description is not None else foam_of_run(run))
     duration_s = _window_end_s(run, profile, cycles) + TAIL_S
     truth = (
         (run.metadata.get("object") or {}).get("young_pa") if run.metadata.get("backend") == "sim" else None
     )
-    sims: dict[tuple, tuple[float, np.ndarray, str]] = {}
+    sims: dict[tuple, tuple[float, np.ndarray, np.ndarray, str]] = {}
 
     def key(foam: FoamParams) -> tuple:
         return (foam.young_pa, foam.poisson, foam.size_m, foam.placement_m, foam.mesh_scale_m)
 
     def reasons(foams: list[FoamParams]) -> list[str]:
         """Why the twin's own grasp failed, for those of `foams` already simulated."""
-        return [sims[key(f)][2] for f in foams if key(f) in sims and sims[key(f)][2]]
+        return [sims[key(f)][3] for f in foams if key(f) in sims and sims[key(f)][3]]
 
     # the first simulation, a bracket, the estimate and both ends of each tolerance (a mesh has no size)
     planned = 1 + len(BRACKET) + 1 + 2 * (3 if base.shape == "mesh" else 4)
@@ -268,27 +323,41 @@ def estimate_modulus(
         if not math.isfinite(s_ref):
             raise _failed(f"{run.path}: no first estimate", reasons([at(REFERENCE_PA)]))
         estimate = REFERENCE_PA * measured / s_ref  # S ~ E to first order
-        for _ in range(2):
+        for sweep in range(SWEEPS):
             bracket = [at(estimate * f) for f in BRACKET]
-            s = np.log(evaluate(bracket))
-            log_e = np.log([f.young_pa for f in bracket])
-            held = np.isfinite(s)  # a modulus at which the twin's own grasp failed is a missing point
-            if held.sum() < MIN_POINTS:
+            _run(bracket)
+            # Every simulation of the described object (at any modulus so far) within the sweep's span.
+            span = (estimate * BRACKET[0] * (1 - 1e-9), estimate * BRACKET[-1] * (1 + 1e-9))
+            points = [
+                (k[0], v[0], v[2])
+                for k, v in sims.items()
+                if k[1:] == key(base)[1:] and span[0] <= k[0] <= span[1] and np.isfinite(v[0])
+            ]
+            if len(points) < MIN_POINTS:  # a modulus at which the twin's own grasp failed is missing
                 raise _failed(f"{run.path}: too few moduli near {estimate / 1e3:.3g} kPa", reasons(bracket))
-            log_e, s = log_e[held], s[held]
-            (power, intercept), residual, *_ = np.polyfit(log_e, s, 1, full=True)
-            # The procedure's own scatter: the grasp settles a little differently at every modulus, so
-            # the simulations scatter about the power law, and the run's S is one more such draw.
-            scatter = math.sqrt(float(residual[0]) / (len(s) - 2)) if len(residual) else 0.0
-            if not power > 0.2:
+            log_e = np.log([p[0] for p in points])
+            log_s = np.log([p[1] for p in points])
+            like = like_grasp_weights(np.array([p[2] for p in points]), shares)
+            power, intercept, scatter, weight = weighted_power_law(log_e, log_s, like, math.log(measured))
+            fitted = weight.sum() >= MIN_LIKE_GRASPS and power > 0.2
+            if fitted or (weight.sum() >= 1.0 and power > 0.2):
+                estimate = math.exp((math.log(measured) - intercept) / power)
+            else:  # too few like grasps for a slope: look again around the likest one
+                estimate = math.exp(float(log_e[np.argmax(like)]))
+            if fitted and span[0] <= estimate <= span[1]:
+                break
+            if sweep == SWEEPS - 1 and weight.sum() < MIN_LIKE_GRASPS:
+                raise EstimateError(
+                    f"{run.path}: near {estimate / 1e3:.3g} kPa the twin spreads the squeeze over the "
+                    "fingertips as the hand did at fewer than two of the moduli simulated, so their "
+                    "stiffnesses are not comparable"
+                )
+            if sweep == SWEEPS - 1 and not power > 0.2:
                 raise EstimateError(
                     f"{run.path}: the twin's squeeze stiffness does not grow with E near "
                     f"{estimate / 1e3:.3g} kPa (power {power:.2f}): the described object is not squeezed "
                     "the way this run's was"
                 )
-            estimate = math.exp((math.log(measured) - intercept) / power)
-            if math.exp(log_e[0]) <= estimate <= math.exp(log_e[-1]):
-                break
         if not RANGE_PA[0] <= estimate <= RANGE_PA[1]:
             raise EstimateError(
                 f"{run.path}: the squeeze stiffness ({measured:.0f} N/m) puts E at {estimate / 1e3:.3g} "

@@ -132,8 +132,8 @@ def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_rea
 
     modulus._init_worker(CompressProfile(), duration_s=9.0, cycles=2)
     tiny = get_object("sphere").with_overrides(size_m=(0.02, 0.02, 0.02))
-    stiffness, contact, reason = modulus._simulate(tiny)
-    assert math.isnan(stiffness) and np.isnan(contact).all()
+    stiffness, contact, shares, reason = modulus._simulate(tiny)
+    assert math.isnan(stiffness) and np.isnan(contact).all() and np.isnan(shares).all()
     assert reason.startswith("at E = 80 kPa: ") and "twin-modulus" not in reason
-    held, _, why = modulus._simulate(get_object("sphere"))
-    assert held > 0 and why == ""
+    held, _, shares, why = modulus._simulate(get_object("sphere"))
+    assert held > 0 and why == "" and abs(shares.sum() - 1.0) < 1e-9 and (shares > 0).all()

@@ -137,3 +137,29 @@ def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_rea
     assert reason.startswith("at E = 80 kPa: ") and "twin-modulus" not in reason
     held, _, shares, why = modulus._simulate(get_object("sphere"))
     assert held > 0 and why == "" and abs(shares.sum() - 1.0) < 1e-9 and (shares > 0).all()
+
+
+def test_the_power_law_leaves_out_a_simulation_whose_grasp_settled_off_it():
+    """A sweep's S(E) with one point collapsed (a clutch that held: a third of the law's S, with the
+    run's own fingertip shares) is read as the law through the others, not bent by it."""
+    from twin.sim.modulus import weighted_power_law
+
+    log_e = np.log(np.geomspace(15e3, 135e3, 9))
+    log_s = 0.9 * log_e - 2.0 + 0.01 * np.sin(7 * log_e)  # the grasp's own jitter, ~1 %
+    log_s[1] -= math.log(3.0)
+    run = 0.9 * math.log(45e3) - 2.0
+    power, intercept, scatter, weight = weighted_power_law(log_e, log_s, np.ones(9), run)
+    assert abs(power - 0.9) < 0.03 and scatter < 0.02, (power, scatter)
+    assert weight[1] == 0.0 and (weight[3:6] > 0.5).all(), weight
+    assert abs(math.exp((run - intercept) / power) / 45e3 - 1) < 0.02
+
+
+def test_like_grasps_are_those_nearest_the_runs_shares_whatever_the_placement_moved():
+    """The object's unknown placement moves every simulation's fingertip shares alike: the closest
+    counts fully, one that settled otherwise (a thumb that barely holds) hardly at all."""
+    from twin.sim.modulus import like_grasp_weights
+
+    run = np.array([0.31, 0.33, 0.36])
+    grasps = np.array([[0.46, 0.43, 0.11], [0.35, 0.30, 0.35], [0.36, 0.31, 0.33]])  # 0.06 off at best
+    weight = like_grasp_weights(grasps, run)
+    assert weight[1] == 1.0 and weight[2] > 0.9 and weight[0] < 1e-3, weight

@@ -89,6 +89,8 @@ MIN_LIKE_GRASPS = 2.0
 """The summed weights of the simulations like the run's grasp that a power law needs."""
 LOCAL_LOG_E = math.log(2.0)
 """The power law is local: a simulation a factor 2 from the estimate counts 61 %, a factor 4 14 %."""
+MIN_WEIGHT = 1e-6
+"""A simulation weighing less than this counts as left out (a slope needs two that count)."""
 SCATTER_FLOOR = 0.02
 """The smallest scale (in log S) for telling a simulation off the power law: the grasp's own jitter."""
 POISSON_RANGE = (0.2, 0.35)
@@ -175,18 +177,21 @@ def weighted_power_law(
     residuals, so that a simulation whose grasp settled off the power law (a clutch that held) does
     not bend it. Returns p, c, the weighted RMS scatter of log S about it (corrected for the two terms
     fitted, with the weights' effective number of points) and the final weights."""
+    if (weight > MIN_WEIGHT).sum() < 2:  # no slope through fewer than two points
+        return math.nan, math.nan, math.nan, weight
     total = weight.copy()
     for _ in range(8):
         power, intercept = np.polyfit(log_e, log_s, 1, w=np.sqrt(total))
         residual = log_s - (power * log_e + intercept)
-        centre = (log_s_run - intercept) / power if power > 0 else float(np.average(log_e, weights=weight))
-        local = np.exp(-0.5 * ((log_e - centre) / LOCAL_LOG_E) ** 2)
-        scale = max(1.4826 * float(np.median(np.abs(residual[weight * local > 0.5]))), SCATTER_FLOOR)
+        centre = (log_s_run - intercept) / power if power > 0 else float(np.average(log_e, weights=total))
+        core = weight * np.exp(-0.5 * ((log_e - centre) / LOCAL_LOG_E) ** 2)
+        near = core >= 0.5 if (core >= 0.5).any() else weight >= 0.5  # the likest is 1: never empty
+        scale = max(1.4826 * float(np.median(np.abs(residual[near]))), SCATTER_FLOOR)
         u = residual / (4.685 * scale)
-        robust = np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
-        total = weight * local * robust
-        if total.sum() < MIN_LIKE_GRASPS:
+        updated = core * np.where(np.abs(u) < 1, (1 - u**2) ** 2, 0.0)
+        if (updated > MIN_WEIGHT).sum() < 2:  # keep the last fit through two points or more
             break
+        total = updated
     power, intercept = np.polyfit(log_e, log_s, 1, w=np.sqrt(total))
     residual = log_s - (power * log_e + intercept)
     n_eff = total.sum() ** 2 / (total**2).sum()

@@ -167,7 +167,8 @@ def test_like_grasps_are_those_nearest_the_runs_shares_whatever_the_placement_mo
 
 def test_the_power_law_through_too_few_or_far_like_grasps_is_nan_or_finite_never_an_error():
     """The like grasps may lie far from where the law meets the run's S (all locality weights small:
-    a 2035 hidden egg crashed the benchmark with 'SVD did not converge'), or be one alone (no slope)."""
+    a 2035 hidden bumpy sphere crashed the benchmark with 'SVD did not converge'), or be one alone (no
+    slope)."""
     from twin.sim.modulus import weighted_power_law
 
     log_e = np.log(np.geomspace(10e3, 90e3, 9))

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
 from twin.shape.surface import TOP_VIEW, SurfaceGrid
-from twin.vision.contour import VIEW_TOLERANCE_DEG
+from twin.vision.contour import VIEW_TOLERANCE_DEG, view_angle_deg
 
 INPUTS = ("p1_counts", "p2_counts", "p3_counts", "T1_nm", "T2_nm", "T3_nm")
 CONTOUR_TARGETS = {"largest": ("contour_px", "contour_mm"), "hull": ("hull_px", "hull_mm")}
@@ -115,7 +115,7 @@ def dataset_view(directory: Path | str, object_name: str) -> list[list[float]] |
             views.append(np.asarray(json.loads(str(arrays["view_from_hand"])), dtype=np.float64))
     if not views:
         return None
-    spread = max(float(np.degrees(np.arccos(np.clip(v[2] @ views[0][2], -1.0, 1.0)))) for v in views)
+    spread = max(view_angle_deg(v, views[0]) for v in views)
     if spread > VIEW_TOLERANCE_DEG:
         raise ConfigError(
             f"{directory}: the trajectories of '{object_name}' were seen from cameras {spread:.0f} deg "

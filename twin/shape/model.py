@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from twin.interface.errors import ConfigError
 from twin.validation import check_number
-from twin.vision.contour import VIEW_TOLERANCE_DEG
+from twin.vision.contour import VIEW_TOLERANCE_DEG, view_angle_deg
 
 HIDDEN = 30
 WEIGHTS_FILE = "model.pt"
@@ -79,11 +79,7 @@ class ShapeModel:
         trained = self.metadata.get("view_from_hand")
         if trained is None:
             return
-        toward_trained, toward = (
-            np.asarray(trained, dtype=float)[2],
-            np.asarray(view_from_hand, dtype=float)[2],
-        )
-        angle = float(np.degrees(np.arccos(np.clip(toward_trained @ toward, -1.0, 1.0))))
+        angle = view_angle_deg(trained, view_from_hand)
         if angle > VIEW_TOLERANCE_DEG:
             raise ConfigError(
                 f"--predict: the model learned contours seen from {angle:.0f} deg away from where these "

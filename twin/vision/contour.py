@@ -213,6 +213,12 @@ def view_from_hand(rectifier: Rectifier) -> NDArray[np.float64]:
     return np.vstack([rot[:, 0], -rot[:, 1], -rot[:, 2]])  # OpenCV camera: y down, z forward
 
 
+def view_angle_deg(view_a: ArrayLike, view_b: ArrayLike) -> float:
+    """Degrees between two views' directions toward the cameras (the third rows of view_from_hand)."""
+    toward_a, toward_b = np.asarray(view_a, dtype=np.float64)[2], np.asarray(view_b, dtype=np.float64)[2]
+    return float(np.degrees(np.arccos(np.clip(toward_a @ toward_b, -1.0, 1.0))))
+
+
 def to_view_plane(
     contour_px: NDArray[np.float64], rectifier: Rectifier, centre_m: ArrayLike
 ) -> NDArray[np.float64]:

@@ -49,7 +49,7 @@ def to_markdown(results: dict) -> str:
         f"{len(results[2]['all_s'])}: **{two:.1f} s with 2 workers**, {one:.1f} s with 1 (speed-up "
         f"{one / two:.2f}x). All: 2 workers {', '.join(f'{t:.1f}' for t in results[2]['all_s'])} s; 1 worker "
         f"{', '.join(f'{t:.1f}' for t in results[1]['all_s'])} s. The simulations come in dependent "
-        "rounds (1, then a sweep of 9 around the first estimate, a second sweep of 9 where needed, then "
-        "9 at the estimate for the interval), so one estimate cannot use more than 9 workers; a Ray "
+        "rounds (1, then 12 around the first estimate, then 12 around the first round's), so one estimate "
+        "cannot use more than 12 workers; a Ray "
         "cluster (`twin sweep --address`) pays across many runs, not within one.\n"
     )

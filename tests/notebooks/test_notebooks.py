@@ -16,6 +16,7 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parents[2] / "notebooks").glob("*.i
 def test_notebook_executes(path: Path, tmp_path: Path, monkeypatch):
     monkeypatch.setenv("TWIN_NOTEBOOK_DURATION_S", "3")
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("TMPDIR", str(tmp_path))  # the notebooks' runs go where pytest prunes them
     monkeypatch.setenv("MUJOCO_GL", os.environ.get("MUJOCO_GL", "egl"))
     nb = nbformat.read(path, as_version=4)
     NotebookClient(

@@ -40,14 +40,15 @@ def _one_line(capsys: pytest.CaptureFixture, *fragments: str) -> str:
 
 def test_the_spheres_modulus_is_recovered_within_its_interval(sphere_identified):
     """The twin's procedure run again at candidate moduli gives back E of a sphere at 57.3 kPa within
-    10 %, inside a 95 % interval that is the quadrature sum of its finite, non-negative parts."""
+    10 %, inside a 95 % interval that is the quadrature sum of its finite, non-negative parts (the
+    nuisances drawn make the like simulations scatter: never a zero width)."""
     code, printed, _ = sphere_identified
     assert code == 0
     m = printed["material"]
     assert abs(m["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.10, m
     assert m["ci95_pa"][0] < SPHERE_YOUNG_PA < m["ci95_pa"][1] and m["covered"], m
     parts = {k: v for k, v in m["sigma_log"].items() if k != "total"}
-    assert set(parts) >= {"noise", "placement_x", "placement_y", "size", "poisson"}
+    assert set(parts) == {"noise", "nuisance"} and parts["nuisance"] > 0, parts
     assert all(math.isfinite(v) and v >= 0 for v in parts.values()), parts
     assert m["sigma_log"]["total"] == pytest.approx(math.sqrt(sum(v**2 for v in parts.values())))
     low, high = m["ci95_pa"]
@@ -154,15 +155,52 @@ def test_the_power_law_leaves_out_a_simulation_whose_grasp_settled_off_it():
     assert abs(math.exp((run - intercept) / power) / 45e3 - 1) < 0.02
 
 
-def test_like_grasps_are_those_nearest_the_runs_shares_whatever_the_placement_moved():
-    """The object's unknown placement moves every simulation's fingertip shares alike: the closest
-    counts fully, one that settled otherwise (a thumb that barely holds) hardly at all."""
+def test_like_grasps_are_those_whose_fingertip_shares_are_the_runs():
+    """A simulation whose fingertips share the squeeze as the run's did counts fully, one 0.05 off 61 %,
+    one that settled otherwise (a thumb that barely holds) hardly at all."""
     from twin.sim.modulus import like_grasp_weights
 
     run = np.array([0.31, 0.33, 0.36])
-    grasps = np.array([[0.46, 0.43, 0.11], [0.35, 0.30, 0.35], [0.36, 0.31, 0.33]])  # 0.06 off at best
-    weight = like_grasp_weights(grasps, run)
-    assert weight[1] == 1.0 and weight[2] > 0.9 and weight[0] < 1e-3, weight
+    off = run + np.array([1.0, -1.0, 0.0]) * 0.05 / math.sqrt(2)  # 0.05 off, still summing to 1
+    weight = like_grasp_weights(np.array([[0.46, 0.43, 0.11], run, off]), run)
+    assert weight[1] == 1.0 and weight[2] == pytest.approx(math.exp(-0.5)) and weight[0] < 1e-3, weight
+
+
+def test_each_simulation_draws_what_the_run_cannot_tell_apart_over_its_tolerance(tmp_path):
+    """Placement, size and Poisson ratio are drawn anew for every simulation, each stratum of each
+    tolerance once (a Latin hypercube), the same for the same seed; a mesh keeps its scan's size."""
+    from twin.sim.modulus import (
+        PLACEMENT_TOLERANCE_M,
+        POISSON_RANGE,
+        SIZE_TOLERANCE_M,
+        describe,
+        nuisance_draws,
+    )
+
+    base = describe(get_object("block"))
+    young = np.geomspace(10e3, 90e3, 12)
+    foams = nuisance_draws(base, young, seed=1)
+    assert [f.young_pa for f in foams] == pytest.approx(young)
+    x = np.array([f.placement_m[0] for f in foams]) / PLACEMENT_TOLERANCE_M
+    nu = np.array([f.poisson for f in foams])
+    grow = np.array([f.size_m[0] - base.size_m[0] for f in foams]) / SIZE_TOLERANCE_M
+    for unit in ((x + 1) / 2, (nu - POISSON_RANGE[0]) / np.ptp(POISSON_RANGE), (grow + 1) / 2):
+        assert sorted(np.floor(unit * 12).astype(int)) == list(range(12))  # one per stratum
+    assert all(np.allclose(np.subtract(f.size_m, base.size_m), f.size_m[0] - base.size_m[0]) for f in foams)
+    assert nuisance_draws(base, young, seed=1) == foams and nuisance_draws(base, young, seed=2) != foams
+    bumpy = describe(mesh_object(_bumpy_sphere_stl(tmp_path / "bumpy.stl"), get_object("block")))
+    assert all(f.size_m == bumpy.size_m for f in nuisance_draws(bumpy, young, seed=1))
+
+
+def test_a_scatter_read_from_few_like_simulations_widens_the_interval():
+    """Student's t over the normal, for the weights' effective number less the two fitted terms: near 1
+    for 30 like simulations, 1.6 for 5, 6.5 for 3; weights on one simulation count as one."""
+    from twin.sim.modulus import scatter_widening
+
+    assert 1.0 < scatter_widening(np.ones(30)) < 1.05
+    assert scatter_widening(np.ones(5)) == pytest.approx(1.624, abs=1e-3)
+    assert scatter_widening(np.ones(3)) == pytest.approx(6.483, abs=1e-3)
+    assert scatter_widening(np.r_[1.0, np.full(29, 1e-4)]) == pytest.approx(6.483, abs=1e-3)
 
 
 def test_the_power_law_through_too_few_or_far_like_grasps_is_nan_or_finite_never_an_error():

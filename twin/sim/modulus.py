@@ -99,9 +99,8 @@ MIN_WEIGHT = 1e-6
 SCATTER_FLOOR = 0.02
 """The smallest scale (in log S) for telling a simulation off the power law: the grasp's own jitter."""
 POISSON_RANGE = (0.2, 0.35)
-"""Flexible polyurethane foams (twin.sim.foam's library docstring); the simulations take the middle."""
-
-
+"""Flexible polyurethane foams (twin.sim.foam's library docstring): the first simulation takes the
+middle, the rounds draw across it."""
 Z95 = 1.959964
 """The standard normal's 97.5 % point: a 95 % interval is +-Z95 sigma."""
 
@@ -224,17 +223,21 @@ def weighted_power_law(
         total = updated
     power, intercept = np.polyfit(log_e, log_s, 1, w=np.sqrt(total))
     residual = log_s - (power * log_e + intercept)
-    n_eff = total.sum() ** 2 / (total**2).sum()
+    n_eff = effective_count(total)
     variance = float((total * residual**2).sum() / total.sum()) * n_eff / max(n_eff - 2.0, 1.0)
     return float(power), float(intercept), math.sqrt(variance), total
+
+
+def effective_count(weight: np.ndarray) -> float:
+    """Kish's effective number of weighted points: (sum w)^2 / sum w^2."""
+    return float(weight.sum() ** 2 / (weight**2).sum())
 
 
 def scatter_widening(weight: np.ndarray) -> float:
     """How much wider a 95 % interval on a scatter read from weighted simulations is than one on a
     known sigma: Student's t for their effective number less the two terms fitted, over Z95 (a few
     like simulations tell the scatter only roughly)."""
-    n_eff = float(weight.sum() ** 2 / (weight**2).sum())
-    return float(student_t.ppf(0.975, max(n_eff - 2.0, 1.0))) / Z95
+    return float(student_t.ppf(0.975, max(effective_count(weight) - 2.0, 1.0))) / Z95
 
 
 def run_stiffness(path: Path, cycles: int = CYCLES) -> tuple[float, float, int, np.ndarray, np.ndarray]:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2036
+DRAW_SEED = 2037
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
 588 %) and the centred bracket (5.7 %, 34.5 %); its worst runs were then studied to build the grasp-matched
@@ -34,8 +34,11 @@ runs crashed the sweep's fit (fixed, with a test) and the whole draw was run aga
 used to build the nuisance-drawn rounds (each simulation's placement, size and Poisson ratio drawn over
 their tolerances), scored on 2036 with noise seeds from 14000 (median 2.2 %, max 69.2 %, 11 refused),
 beside the method before on the same runs (2.4 %, 82.4 %, 6 refused). Variants of it were tried on 2035
-only. The next method must be scored on a seed of its own (2037 on)."""
-FIRST_NOISE_SEED = 14000
+only; open-loop replays of the run's commands instead of its procedure on 20 of 2036's runs (two
+intervals missed; not kept). 2037, with noise seeds from 16000, scored the precision rule (a number only
+where its 95 % interval is within 15 %, PRECISION in twin.sim.modulus), chosen before the draw was made.
+The next method must be scored on a seed of its own (2038 on)."""
+FIRST_NOISE_SEED = 16000
 PER_SHAPE = 8
 CANDIDATES = 24
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or
@@ -146,11 +149,18 @@ def held(run_dir: str) -> bool:
 
 def estimate(run_dir: str, description=None) -> dict:
     """estimate_modulus's figures for a row (or why there is none)."""
-    from twin.sim.modulus import EstimateError, estimate_modulus
+    from twin.sim.modulus import EstimateError, ImpreciseEstimateError, estimate_modulus
 
     started = time.perf_counter()
     try:
         e = estimate_modulus(run_dir, description=description, workers=2)
+    except ImpreciseEstimateError as exc:  # the interval alone: scored for coverage, and what it hid
+        return {
+            "refused": str(exc).removeprefix(f"{run_dir}: "),
+            "interval_only_pa": list(exc.estimate.ci95_pa),
+            "withheld_pa": exc.estimate.young_pa,
+            "wall_s": exc.estimate.wall_s,
+        }
     except EstimateError as exc:
         return {"refused": str(exc).removeprefix(f"{run_dir}: "), "wall_s": time.perf_counter() - started}
     return {
@@ -166,6 +176,9 @@ def _score(row: dict) -> dict:
     if "estimate_pa" in row:
         row["error"] = row["estimate_pa"] / row["young_pa"] - 1.0
         row["covered"] = bool(row["ci95_pa"][0] <= row["young_pa"] <= row["ci95_pa"][1])
+    if "interval_only_pa" in row:
+        row["withheld_error"] = row["withheld_pa"] / row["young_pa"] - 1.0
+        row["covered"] = bool(row["interval_only_pa"][0] <= row["young_pa"] <= row["interval_only_pa"][1])
     return row
 
 
@@ -288,12 +301,16 @@ def run(quick: bool = False) -> dict:
 def _summary(rows: list[dict]) -> dict:
     scored = [r for r in rows if "error" in r]
     errors = np.abs([r["error"] for r in scored]) if scored else np.array([np.nan])
+    intervals = [r for r in rows if "interval_only_pa" in r]
     return {
         "n": len(rows),
         "refused": len(rows) - len(scored),
         "median": float(np.median(errors)),
         "max": float(np.max(errors)),
         "coverage": float(np.mean([r["covered"] for r in scored])) if scored else float("nan"),
+        "interval_only": len(intervals),
+        "interval_only_covered": sum(r["covered"] for r in intervals),
+        "withheld_max": max((abs(r["withheld_error"]) for r in intervals), default=float("nan")),
     }
 
 
@@ -322,8 +339,11 @@ def to_markdown(results: dict) -> str:
         INTRO.format(seed=DRAW_SEED, per_shape=PER_SHAPE),
         "",
         f"**{s['n']} hidden runs: median |E error| {100 * s['median']:.1f} %, max {100 * s['max']:.1f} %, "
-        f"the 95 % interval holds the truth in {100 * s['coverage']:.0f} %; {s['refused']} refused** "
-        "(target: median <= 5 %, max <= 15 %, coverage >= 90 %; errors and coverage over the estimates).",
+        f"the 95 % interval holds the truth in {100 * s['coverage']:.0f} %; {s['refused']} refused, of which "
+        f"{s['interval_only']} with their interval alone (it holds the truth in {s['interval_only_covered']} "
+        f"of {s['interval_only']}; the numbers withheld were off by up to {100 * s['withheld_max']:.1f} %)** "
+        "(target: median <= 5 %, max <= 15 %, coverage >= 90 %; errors and coverage over the numbers given; "
+        "a number is given where its 95 % interval is within 15 %, PRECISION in twin.sim.modulus).",
         "",
         "| shape | runs | refused | median abs error | max abs error | coverage | median interval (+-) |",
         "|---|---|---|---|---|---|---|",
@@ -394,6 +414,10 @@ def _row(r: dict) -> str:
     size = " x ".join(f"{v * 1e3:.0f}" for v in r["size_m"])
     place = ", ".join(f"{v * 1e3:+.1f}" for v in r["placement_m"])
     head = f"| {r['shape']} | {size} | {place} | {r['poisson']:.2f} | {r['young_pa'] / 1e3:.1f} |"
+    if "interval_only_pa" in r:
+        lo, hi = (v / 1e3 for v in r["interval_only_pa"])
+        withheld = f"withheld {r['withheld_pa'] / 1e3:.1f} ({100 * r['withheld_error']:+.1f} %)"
+        return head + f" interval only | {lo:.1f}-{hi:.1f} | {withheld} | {r['wall_s']:.0f} s |"
     if "error" not in r:
         return head + f" refused: {r['refused']} | | | {r['wall_s']:.0f} s |"
     lo, hi = (v / 1e3 for v in r["ci95_pa"])
@@ -402,6 +426,12 @@ def _row(r: dict) -> str:
 
 
 def _short_row(name: str, r: dict) -> str:
+    if "interval_only_pa" in r:
+        lo, hi = (v / 1e3 for v in r["interval_only_pa"])
+        covered = "yes" if r["covered"] else "no"
+        withheld = f"withheld {r['withheld_pa'] / 1e3:.1f} ({100 * r['withheld_error']:+.1f} %)"
+        interval = f"interval only | {lo:.1f}-{hi:.1f} | {withheld}"
+        return f"| {name} | {r['young_pa'] / 1e3:.1f} | {interval} | {covered} |"
     if "error" not in r:
         return f"| {name} | {r['young_pa'] / 1e3:.1f} | refused: {r['refused']} | | | |"
     lo, hi = (v / 1e3 for v in r["ci95_pa"])
@@ -426,6 +456,11 @@ def plot(results: dict, path: str) -> None:
         est = np.array([r["estimate_pa"] for r in part]) / 1e3
         ci = np.array([r["ci95_pa"] for r in part]).T / 1e3
         ax.errorbar(true, est, yerr=[est - ci[0], ci[1] - est], fmt="o", ms=4, capsize=2, label=shape)
+    only = [r for r in results["rows"] if r["variant"] == "hidden" and "interval_only_pa" in r]
+    if only:
+        true = np.array([r["young_pa"] for r in only]) / 1e3
+        ci = np.array([r["interval_only_pa"] for r in only]).T / 1e3
+        ax.vlines(true, ci[0], ci[1], colors="0.55", lw=3, alpha=0.6, label="interval only (> 15 %)")
     ax.plot([5, 400], [5, 400], "k-", lw=0.8)
     ax.set(
         xscale="log",

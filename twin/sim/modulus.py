@@ -101,12 +101,24 @@ SCATTER_FLOOR = 0.02
 POISSON_RANGE = (0.2, 0.35)
 """Flexible polyurethane foams (twin.sim.foam's library docstring): the first simulation takes the
 middle, the rounds draw across it."""
+PRECISION = 0.15
+"""The widest 95 % interval a number is given with: within 15 % of the estimate either way (in log E).
+Foam makers state a grade's hardness to about this tolerance, so a modulus this close tells a lab
+which foam it holds; a wider interval is reported as the interval alone, with why (`--precision`)."""
 Z95 = 1.959964
 """The standard normal's 97.5 % point: a 95 % interval is +-Z95 sigma."""
 
 
 class EstimateError(FitError):
     """The run gives no modulus the method can stand behind (one line says why)."""
+
+
+class ImpreciseEstimateError(EstimateError):
+    """The run bounds the modulus, but not within the precision asked: the interval alone, and why."""
+
+    def __init__(self, message: str, estimate: ModulusEstimate) -> None:
+        super().__init__(message)
+        self.estimate = estimate
 
 
 @dataclass
@@ -322,11 +334,14 @@ def estimate_modulus(
     description: FoamParams | None = None,
     workers: int = 2,
     progress: Callable[[int, int], None] | None = None,
+    precision: float | None = PRECISION,
 ) -> ModulusEstimate:
     """E and its 95 % interval from a compress run (module docstring).
 
     `description`: the object (shape, size or mesh); default the run's own record of it, of which only
-    the geometry is used. `progress(done, planned)` after every batch of simulations."""
+    the geometry is used. `progress(done, planned)` after every batch of simulations. `precision`: the
+    largest relative half-width of the 95 % interval a number is given with (None: any); wider ends in
+    ImpreciseEstimateError, which carries the estimate and says its interval."""
     started = time.perf_counter()
     run = Run(run_path)
     check_run_metadata(run.info, run.path / "run.json")
@@ -429,7 +444,7 @@ def estimate_modulus(
             f"{RANGE_PA[0] / 1e3:.0f}-{RANGE_PA[1] / 1e3:.0f} kPa of foams the method answers for: the "
             "simulations that grasp the object as the hand did scatter too much to tell its modulus"
         )
-    return ModulusEstimate(
+    result = ModulusEstimate(
         run_path=run.path,
         young_pa=estimate,
         ci95_pa=(estimate * math.exp(-half), estimate * math.exp(half)),
@@ -451,3 +466,13 @@ def estimate_modulus(
         cycles=cycles,
         twin_young_pa=float(truth) if truth else None,
     )
+    if precision is not None and half > math.log1p(precision):
+        low, high = (v / 1e3 for v in result.ci95_pa)
+        sources = ", ".join(f"{k} {100 * v:.0f} %" for k, v in sigma.items() if k != "total")
+        raise ImpreciseEstimateError(
+            f"{run.path}: E lies within {low:.3g}-{high:.3g} kPa (95 %), too wide for a number within "
+            f"{100 * precision:.0f} % (1-sigma in log E: {sources}; the squeeze stiffness grows as E^"
+            f"{power:.2f} here); give a larger --precision for the number anyway",
+            result,
+        )
+    return result

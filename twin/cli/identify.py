@@ -6,7 +6,7 @@ import argparse
 
 from twin.cli.common import SIZE_MM, WORKERS, add_mesh_scale, run_metadata
 from twin.interface.errors import ConfigError
-from twin.validation import existing_file, experiment_name, out_dir, run_dir
+from twin.validation import existing_file, experiment_name, finite, out_dir, run_dir
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +34,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_mesh_scale(p)
     p.add_argument("--workers", type=WORKERS, default=2, help="simulations in parallel (processes)")
+    p.add_argument(
+        "--precision",
+        type=finite(0.0, min_inclusive=False),
+        default=15.0,
+        metavar="PCT",
+        help="give E as a number only where its 95 %% interval is within this many per cent of it; "
+        "a wider one ends in the interval alone (default 15)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -113,8 +121,11 @@ def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001
     """twin.sim.modulus.estimate_modulus with a progress bar (simulations done of those planned)."""
     from twin.sim.modulus import estimate_modulus
 
+    precision = args.precision / 100
     if args.no_progress:
-        return estimate_modulus(args.run_dir, description=description, workers=args.workers)
+        return estimate_modulus(
+            args.run_dir, description=description, workers=args.workers, precision=precision
+        )
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     columns = (TextColumn("[bold]modulus"), BarColumn(), MofNCompleteColumn(), TextColumn("simulations"))
@@ -125,7 +136,11 @@ def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001
             bar.update(task, completed=done, total=planned)
 
         return estimate_modulus(
-            args.run_dir, description=description, workers=args.workers, progress=progress
+            args.run_dir,
+            description=description,
+            workers=args.workers,
+            progress=progress,
+            precision=precision,
         )
 
 

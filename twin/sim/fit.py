@@ -76,11 +76,12 @@ class FitError(ConfigError):
 
 
 def _identified_young_pa(path: Path, foam: FoamParams | None, workers: int) -> float | None:
-    """E from `twin identify`'s engine (twin.sim.modulus), or None where it cannot say."""
+    """E from `twin identify`'s engine (twin.sim.modulus), or None where it cannot say (a start: however
+    wide its interval)."""
     from twin.sim.modulus import EstimateError, estimate_modulus
 
     try:
-        return estimate_modulus(path, description=foam, workers=workers).young_pa
+        return estimate_modulus(path, description=foam, workers=workers, precision=None).young_pa
     except (EstimateError, ValueError, KeyError):  # no pads, no compression, not a foam: scan instead
         return None
 

@@ -471,7 +471,7 @@ def estimate_modulus(
         sources = ", ".join(f"{k} {100 * v:.0f} %" for k, v in sigma.items() if k != "total")
         raise ImpreciseEstimateError(
             f"{run.path}: E lies within {low:.3g}-{high:.3g} kPa (95 %), too wide for a number within "
-            f"{100 * precision:.0f} % (1-sigma in log E: {sources}; the squeeze stiffness grows as E^"
+            f"{100 * precision:.3g} % (1-sigma in log E: {sources}; the squeeze stiffness grows as E^"
             f"{power:.2f} here); give a larger --precision for the number anyway",
             result,
         )

@@ -18,7 +18,7 @@ from twin.identify.identify import identify_run, squeeze_stiffness
 from twin.identify.signals import load_signals
 from twin.sim.backend import SimBackend
 from twin.sim.foam import get_object, mesh_object
-from twin.sim.modulus import estimate_modulus
+from twin.sim.modulus import ImpreciseEstimateError, estimate_modulus
 
 BLOCK_DURATION_S = 10.0
 """Two whole 0.5 Hz cycles after the grasp settles, for the slowest grasp below (the softer block)."""
@@ -115,15 +115,28 @@ def test_contradictory_object_descriptions_are_one_line(flags, message, sphere_r
 
 def test_a_mesh_foams_modulus_is_recovered_within_its_interval(tmp_path):
     """The same method on any closed surface: a bumpy 66 mm sphere at 25 kPa (fast fidelity) comes back
-    within 15 %, inside its 95 % interval."""
+    within 15 %, inside its 95 % interval. Asked for a precision no run gives (0.1 %), the estimate ends
+    in the interval alone, in one line, and carries the estimate withheld."""
     stl = _bumpy_sphere_stl(tmp_path / "bumpy.stl", radius_mm=33.0, bump=0.05)
     foam = mesh_object(stl, get_object("block").with_overrides(young_pa=25e3))
     run = tmp_path / "mesh"
     run_compress(SimBackend(foam, seed=11), run, duration_s=14.0, object_name=foam.name)
-    estimate = estimate_modulus(run)
-    m = estimate.to_json()
+    with pytest.raises(ImpreciseEstimateError) as caught:
+        estimate_modulus(run, precision=0.001)
+    m = caught.value.estimate.to_json()
     assert m["object"]["shape"] == "mesh" and m["twin_young_pa"] == 25e3
     assert abs(m["error"]) < 0.15 and m["covered"], m
+    low, high = (v / 1e3 for v in m["ci95_pa"])
+    said = str(caught.value)
+    assert "\n" not in said and f"within {low:.3g}-{high:.3g} kPa (95 %)" in said, said
+    assert "a number within 0.1 %" in said, said
+
+
+def test_a_precision_that_is_not_a_positive_number_is_one_line(sphere_run, tmp_path, capsys):
+    argv = ["identify", str(sphere_run), "--no-progress", "--out", str(tmp_path / "out"), "--precision", "0"]
+    assert main(argv) == 2
+    _one_line(capsys, "--precision", "must be a finite number > 0")
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_reason():

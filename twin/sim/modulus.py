@@ -30,6 +30,8 @@ with nothing tuned per shape or size: the twin's mechanics carry the geometry.
 
 A run the method cannot stand behind ends in EstimateError, one line: no compression, an object that
 slipped out of the grasp, an estimate outside the foams' range, a twin that cannot grasp the object.
+An interval wider than the precision asked (PRECISION) ends in ImpreciseEstimateError, which says the
+interval and carries the estimate withheld: the number is given only where the run supports it.
 """
 
 from __future__ import annotations

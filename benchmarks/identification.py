@@ -416,9 +416,7 @@ def _row(r: dict) -> str:
     place = ", ".join(f"{v * 1e3:+.1f}" for v in r["placement_m"])
     head = f"| {r['shape']} | {size} | {place} | {r['poisson']:.2f} | {r['young_pa'] / 1e3:.1f} |"
     if "interval_only_pa" in r:
-        lo, hi = (v / 1e3 for v in r["interval_only_pa"])
-        withheld = f"withheld {r['withheld_pa'] / 1e3:.1f} ({100 * r['withheld_error']:+.1f} %)"
-        return head + f" interval only | {lo:.1f}-{hi:.1f} | {withheld} | {r['wall_s']:.0f} s |"
+        return head + f" {_interval_only(r)} | {r['wall_s']:.0f} s |"
     if "error" not in r:
         return head + f" refused: {r['refused']} | | | {r['wall_s']:.0f} s |"
     lo, hi = (v / 1e3 for v in r["ci95_pa"])
@@ -426,13 +424,19 @@ def _row(r: dict) -> str:
     return head + f" {r['estimate_pa'] / 1e3:.1f} | {lo:.1f}-{hi:.1f} | {error} | {r['wall_s']:.0f} s |"
 
 
+def _interval_only(r: dict) -> str:
+    """The estimate, interval and error cells of a run given its interval alone."""
+    lo, hi = (v / 1e3 for v in r["interval_only_pa"])
+    return (
+        f"interval only | {lo:.1f}-{hi:.1f} | withheld {r['withheld_pa'] / 1e3:.1f} "
+        f"({100 * r['withheld_error']:+.1f} %)"
+    )
+
+
 def _short_row(name: str, r: dict) -> str:
     if "interval_only_pa" in r:
-        lo, hi = (v / 1e3 for v in r["interval_only_pa"])
         covered = "yes" if r["covered"] else "no"
-        withheld = f"withheld {r['withheld_pa'] / 1e3:.1f} ({100 * r['withheld_error']:+.1f} %)"
-        interval = f"interval only | {lo:.1f}-{hi:.1f} | {withheld}"
-        return f"| {name} | {r['young_pa'] / 1e3:.1f} | {interval} | {covered} |"
+        return f"| {name} | {r['young_pa'] / 1e3:.1f} | {_interval_only(r)} | {covered} |"
     if "error" not in r:
         return f"| {name} | {r['young_pa'] / 1e3:.1f} | refused: {r['refused']} | | | |"
     lo, hi = (v / 1e3 for v in r["ci95_pa"])

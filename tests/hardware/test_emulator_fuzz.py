@@ -272,18 +272,21 @@ def pty_open(path: str) -> int:
 
 
 def pty_resync(fd: int) -> None:
-    """A new client on the terminal: a CR (it may finish what the last client left half-typed), read
-    up to the prompt and until quiet, then a CR must give exactly the prompt."""
+    """A new client on the terminal: a CR (it may finish what the last client left half-typed), then a
+    query whose echo and answer can only come once everything the last client sent has been answered
+    (a pty is one stream: its backlog is the hand's to work through, at wire speed, as on a real
+    line); then a CR must give exactly the prompt.
+
+    (Waiting for a quiet spell after a prompt instead was flaky on a loaded machine: a serial thread
+    kept off the CPU for longer than the spell answered one of the last client's Ctrl-Cs later.)"""
     deadline = time.monotonic() + HANG_GUARD_S
-    os.write(fd, b"\r")
+    os.write(fd, b"\r" + RESYNC_QUERY + b"\r")
     data = b""
-    while True:
+    while not re.search(re.escape(RESYNC_QUERY) + rb"\n\r-?\d+\n\r=> $", data):
         left = deadline - time.monotonic()
-        assert left > 0, f"hang: no prompt on the pty; got {data[-200:]!r}"
-        if not select.select([fd], [], [], min(left, 0.2 if data.endswith(PROMPT) else left))[0]:
-            if data.endswith(PROMPT):
-                break
-            continue
+        assert left > 0 and select.select([fd], [], [], left)[0], (
+            f"hang: no answer on the pty; got {data[-200:]!r}"
+        )
         data += os.read(fd, 4096)
     os.write(fd, b"\r")
     reply = b""
@@ -291,6 +294,10 @@ def pty_resync(fd: int) -> None:
         assert select.select([fd], [], [], HANG_GUARD_S)[0], f"hang: got {reply!r}"
         reply += os.read(fd, 4096)
     assert reply == PROMPT
+
+
+RESYNC_QUERY = b"1FGET P"
+"""Finger 1's position: answered with one number, whatever the hand is doing."""
 
 
 @pytest.mark.parametrize("abuse", [b"x" * 100_000 + b"\r", b"\x00\x03\xff" * 3000, b"#" * 50 + b"\x03"])

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2037
+DRAW_SEED = 2038
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
 588 %) and the centred bracket (5.7 %, 34.5 %); its worst runs were then studied to build the grasp-matched
@@ -38,8 +38,11 @@ only; open-loop replays of the run's commands instead of its procedure on 20 of 
 intervals missed; not kept). 2037, with noise seeds from 16000, scored the precision rule (a number only
 where its 95 % interval is within 15 %, PRECISION in twin.sim.modulus), fixed before the draw was made:
 20 numbers, median 2.5 %, max 18.9 %, coverage 90 %; 15 intervals alone (14 hold the truth), 5 refused.
-The next method must be scored on a seed of its own (2038 on)."""
-FIRST_NOISE_SEED = 16000
+Two of its numbers lay outside their intervals (a sphere on a second branch of grasps the robust fit
+set aside, a block read beyond its like simulations); studied on 2037's runs, the interval became a
+prediction from every like simulation near the run's S (predictive_sigma), scored on 2038 with noise
+seeds from 18000. The next method must be scored on a seed of its own (2039 on)."""
+FIRST_NOISE_SEED = 18000
 PER_SHAPE = 8
 CANDIDATES = 24
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or

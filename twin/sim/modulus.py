@@ -21,10 +21,11 @@ with nothing tuned per shape or size: the twin's mechanics carry the geometry.
    wide one (a factor 9 of E) around a first estimate from one simulation, and a narrow one (a factor
    3) around the first round's estimate.
 3. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
-   cycles), and the like simulations' scatter about the power law. Their nuisances were drawn over the
-   tolerances, so that scatter is what the run cannot tell apart, read where the twin grasps as the
-   hand did, plus the grasp's own jitter (the run's S is one more draw of it); read from few like
-   simulations, it is widened by Student's t.
+   cycles), and where the simulations put a run of the run's S (predictive_sigma): their scatter
+   about the power law, counted by how like the run's their grasp and their S are, the ones the robust
+   fit set aside included (the run may have settled as they did), plus the law's own uncertainty
+   where it meets the run, widened by Student's t where few simulations count. Their nuisances were
+   drawn over the tolerances, so that scatter is what the run cannot tell apart.
 4. A posterior check: the like simulations must touch the object with the fingertips the run did,
    for as long, or their stiffnesses are not comparable.
 
@@ -247,6 +248,33 @@ def effective_count(weight: np.ndarray) -> float:
     return float(weight.sum() ** 2 / (weight**2).sum())
 
 
+def predictive_sigma(
+    log_e: np.ndarray, log_s: np.ndarray, like: np.ndarray, power: float, intercept: float, log_s_run: float
+) -> float:
+    """1-sigma in log E of where the run's S puts its modulus, read from the simulations about the power
+    law: Beaumont, Zhang & Balding's regression adjustment (each simulation's log E moved along the law
+    to the run's S: its residual over p), with their kernel on the statistic. A simulation counts by how
+    like the run's its grasp is (`like`) and how near the run's its S is (a factor 2 of E along the law),
+    whether or not the robust fit kept it: one whose grasp settled on another branch, with the run's
+    shares and S, says the run may have too. To that scatter (corrected for the two fitted terms by the
+    weights' effective number n) the law's own uncertainty where it meets the run is added (a prediction
+    interval's 1 + 1/n + (x0 - mean)^2 / (n var) in log E), and the whole widened by Student's t for n.
+    Infinite where no simulation counts."""
+    residual = log_s - (power * log_e + intercept)
+    weight = like * np.exp(-0.5 * ((log_s - log_s_run) / (power * LOCAL_LOG_E)) ** 2)
+    if not weight.sum() > MIN_WEIGHT:
+        return math.inf
+    n_eff = effective_count(weight)
+    scatter = float((weight * residual**2).sum() / weight.sum()) * n_eff / max(n_eff - 2.0, 1.0)
+    centre = float(np.average(log_e, weights=weight))
+    spread = float(np.average((log_e - centre) ** 2, weights=weight))
+    if spread <= 0.0:
+        return math.inf
+    log_e_run = (log_s_run - intercept) / power
+    line = 1.0 / n_eff + (log_e_run - centre) ** 2 / (n_eff * spread)
+    return scatter_widening(weight) * math.sqrt(scatter * (1.0 + line)) / power
+
+
 def scatter_widening(weight: np.ndarray) -> float:
     """How much wider a 95 % interval on a scatter read from weighted simulations is than one on a
     known sigma: Student's t for their effective number less the two terms fitted, over Z95 (a few
@@ -393,7 +421,7 @@ def estimate_modulus(
             log_e = np.log([f.young_pa for f in held])
             log_s = np.log([sims[key(f)][0] for f in held])
             like = like_grasp_weights(np.array([sims[key(f)][2] for f in held]), shares)
-            power, intercept, scatter, weight = weighted_power_law(log_e, log_s, like, math.log(measured))
+            power, intercept, _, weight = weighted_power_law(log_e, log_s, like, math.log(measured))
             fitted = weight.sum() >= MIN_LIKE_GRASPS and power > 0.2
             if fitted:
                 estimate = math.exp((math.log(measured) - intercept) / power)
@@ -436,7 +464,7 @@ def estimate_modulus(
         )
     sigma = {
         "noise": measured_sigma / measured / power if math.isfinite(measured_sigma) else 0.0,
-        "nuisance": scatter_widening(weight) * scatter / power,
+        "nuisance": predictive_sigma(log_e, log_s, like, power, intercept, math.log(measured)),
     }
     sigma["total"] = math.sqrt(sum(v**2 for v in sigma.values()))
     half = Z95 * sigma["total"]

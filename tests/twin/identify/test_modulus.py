@@ -216,6 +216,51 @@ def test_a_scatter_read_from_few_like_simulations_widens_the_interval():
     assert scatter_widening(np.r_[1.0, np.full(29, 1e-4)]) == pytest.approx(6.483, abs=1e-3)
 
 
+def test_the_interval_counts_like_grasps_at_the_runs_stiffness_that_the_robust_fit_set_aside():
+    """A sweep (p = 0.5, a sphere's) whose grasps settle on two branches the fingertip shares cannot
+    tell apart: the robust law follows the main one, two simulations lie 12 % lower in S. A run on the
+    lower branch is read 22 % low; its interval must hold the truth, because simulations with its grasp
+    and its S sat off the law (2037's sphere-s16051: -18.9 % outside +-9 %). Without them it would not;
+    a grasp that failed (S near nothing) is no such witness."""
+    from twin.sim.modulus import Z95, predictive_sigma, weighted_power_law
+
+    log_e = np.log(np.geomspace(20e3, 160e3, 16))
+    log_s = 0.5 * log_e + 2.0 + 0.01 * np.sin(7 * log_e)  # the grasp's own jitter, ~1 %
+    branch = [11, 13]  # 92 and 121 kPa
+    log_s[branch] -= 0.12
+    truth = 93e3
+    run = 0.5 * math.log(truth) + 2.0 - 0.12
+    power, intercept, _, weight = weighted_power_law(log_e, log_s, np.ones(16), run)
+    assert (weight[branch] == 0).all()  # set aside by the fit
+    error = abs((run - intercept) / power - math.log(truth))
+    assert error > math.log(1.2)
+    half = Z95 * predictive_sigma(log_e, log_s, np.ones(16), power, intercept, run)
+    assert half >= error, (half, error)
+    main = np.setdiff1d(np.arange(16), branch)
+    assert Z95 * predictive_sigma(log_e[main], log_s[main], np.ones(14), power, intercept, run) < error / 3
+    failed = predictive_sigma(
+        np.r_[log_e, math.log(19e3)], np.r_[log_s, math.log(6.0)], np.ones(17), power, intercept, run
+    )
+    assert failed == pytest.approx(half / Z95, rel=1e-6)
+
+
+def test_the_interval_widens_where_the_run_lies_beyond_its_like_grasps():
+    """Like grasps only below 60 kPa: a run whose S the law meets at 90 kPa is a prediction beyond
+    them (2037's block-s16003, +16.3 % outside +-13 %), and its interval is wider than one at 40 kPa,
+    in their midst, by the regression's own term for it."""
+    from twin.sim.modulus import predictive_sigma, weighted_power_law
+
+    log_e = np.log(np.geomspace(20e3, 160e3, 16))
+    log_s = 0.5 * log_e + 2.0 + 0.01 * np.sin(7 * log_e)
+    like = np.where(np.exp(log_e) < 60e3, 1.0, 0.0)
+    power, intercept, _, _ = weighted_power_law(log_e, log_s, like, 0.5 * math.log(40e3) + 2.0)
+    inside, beyond = (
+        predictive_sigma(log_e, log_s, like, power, intercept, 0.5 * math.log(e) + 2.0) for e in (40e3, 90e3)
+    )
+    assert beyond > 1.5 * inside, (inside, beyond)
+    assert math.isinf(predictive_sigma(log_e, log_s, np.zeros(16), power, intercept, float(log_s[3])))
+
+
 def test_the_power_law_through_too_few_or_far_like_grasps_is_nan_or_finite_never_an_error():
     """The like grasps may lie far from where the law meets the run's S (all locality weights small:
     a 2035 hidden bumpy sphere crashed the benchmark with 'SVD did not converge'), or be one alone (no

@@ -37,9 +37,15 @@ EPISODE_STEPS = 300
 """10 s of the hand's 30 Hz loop: the registered episodes are truncated there."""
 OPEN_COUNTS = 200
 """A finger below this many counts counts as open at reset."""
-OPEN_TIMEOUT_S = 15.0
-"""How long a reset waits for the fingers to open: a full close undone takes ~1.7 s at the task's
-10,000 counts/s; the rest is for a host or an emulated twin running behind wall time."""
+OPEN_STALL_S = 5.0
+"""A reset waits for the fingers to open while they still move: it gives up once none of those not yet
+open has come OPEN_PROGRESS_COUNTS nearer in this long (a full close undone takes ~1.7 s at the task's
+10,000 counts/s). Progress, not a deadline: an emulated twin running behind wall time on a loaded host
+opens its fingers late, not never."""
+OPEN_PROGRESS_COUNTS = 50
+"""Movement that counts as progress while opening: well above the encoders' jitter of a few counts."""
+OPEN_TIMEOUT_S = 60.0
+"""The longest a reset waits for the fingers to open, moving or not."""
 VELOCITY_LIMIT_COUNTS = 32767
 """Bounds of a velocity reading (the wire's signed 16 bits)."""
 
@@ -156,19 +162,27 @@ class SqueezeEnv(gym.Env):
             self._open_fingers()
         return self._observe(), {"backend": self.backend_name}
 
-    def _open_fingers(self, timeout_s: float = OPEN_TIMEOUT_S) -> None:
-        """Send every finger to 0 and wait (at the loop's rate) until they are nearly there; a hand that
-        has not opened by then is an error, not an episode that starts closed."""
+    def _open_fingers(self, stall_s: float = OPEN_STALL_S, timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        """Send every finger to 0 and wait (at the loop's rate) until they are nearly there; a hand whose
+        fingers stop short of open is an error, not an episode that starts closed."""
         command = HandCommand(np.zeros(4), max_velocity_counts_s=self.task.max_velocity_counts_s)
-        for _ in range(int(timeout_s / self._backend.hand.spec.period_s)):
+        period_s = self._backend.hand.spec.period_s
+        best = np.full(3, np.inf)  # each finger's nearest approach to open so far
+        since_progress = 0
+        for _ in range(int(timeout_s / period_s)):
             self._backend.hand.command(self._safety.check(command))
             self._advance()
             position = self._backend.hand.read().position_counts[:3]
             if (position < OPEN_COUNTS).all():
                 return
+            moved = (position < best - OPEN_PROGRESS_COUNTS) & (position >= OPEN_COUNTS)
+            since_progress = 0 if moved.any() else since_progress + 1
+            best = np.where(moved | ~np.isfinite(best), position, best)
+            if since_progress * period_s >= stall_s:
+                break
         raise RuntimeError(
-            f"reset: the fingers did not open within {timeout_s:g} s (at {position.tolist()} counts; "
-            f"open is below {OPEN_COUNTS}): is something blocking the hand?"
+            f"reset: the fingers stopped short of open (at {position.tolist()} counts; open is below "
+            f"{OPEN_COUNTS}): is something blocking the hand?"
         )
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:

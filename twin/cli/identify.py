@@ -42,6 +42,33 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="give E as a number only where its 95 %% interval is within this many per cent of it; "
         "a wider one ends in the interval alone (default 15)",
     )
+    g = p.add_argument_group(
+        "tolerances",
+        "what the run cannot tell apart, drawn over in every simulation (the interval holds as far as "
+        "they do)",
+    )
+    g.add_argument(
+        "--placement-tolerance-mm",
+        type=finite(0.0, 10.0),
+        default=3.0,
+        metavar="MM",
+        help="the object sits within this of the palm's centre, either axis (default 3)",
+    )
+    g.add_argument(
+        "--size-tolerance-mm",
+        type=finite(0.0, 5.0),
+        default=1.0,
+        metavar="MM",
+        help="every described extent is within this of the object's (default 1; a mesh is its own scan)",
+    )
+    g.add_argument(
+        "--poisson",
+        type=finite(0.0, 0.5, max_inclusive=False),
+        nargs=2,
+        default=(0.2, 0.35),
+        metavar=("LOW", "HIGH"),
+        help="the foam's Poisson ratio lies within these (default 0.2 0.35: flexible polyurethane foams)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -71,6 +98,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise ConfigError("--shape and --size-mm go together")
     if args.object_mesh is not None and args.shape is not None:
         raise ConfigError("--object-mesh or --shape/--size-mm, not both")
+    from twin.sim.modulus import Tolerances
+
+    args.tolerances = Tolerances(
+        args.placement_tolerance_mm / 1e3, args.size_tolerance_mm / 1e3, tuple(args.poisson)
+    )
     metadata = run_metadata(args.run_dir, "RUN")
     if args.free is not None:
         name = experiment_name(run_metadata(args.free, "--free"))
@@ -111,6 +143,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
         f"  from the squeeze stiffness {estimate.stiffness_n_m:.0f} N/m over {estimate.cycles} cycles and "
         f"{len(estimate.simulations)} simulations of the procedure; 1-sigma: {widths}"
     )
+    if estimate.width_sources:
+        parts = ", ".join(f"{k} {100 * v:.0f} %" for k, v in estimate.width_sources.items())
+        print(f"  the nuisance's variance from: {parts}")
     for note in ident.notes:
         print(f"note: {note}")
     print(f"wrote {paths['results']}, {paths['figure'].name}, {paths['rerun'].name}")
@@ -124,7 +159,11 @@ def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001
     precision = args.precision / 100
     if args.no_progress:
         return estimate_modulus(
-            args.run_dir, description=description, workers=args.workers, precision=precision
+            args.run_dir,
+            description=description,
+            workers=args.workers,
+            precision=precision,
+            tolerances=args.tolerances,
         )
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -141,6 +180,7 @@ def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001
             workers=args.workers,
             progress=progress,
             precision=precision,
+            tolerances=args.tolerances,
         )
 
 

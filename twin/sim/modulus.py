@@ -104,6 +104,12 @@ SCATTER_FLOOR = 0.02
 POISSON_RANGE = (0.2, 0.35)
 """Flexible polyurethane foams (twin.sim.foam's library docstring): the first simulation takes the
 middle, the rounds draw across it."""
+MAX_PLACEMENT_M = 0.01
+"""The largest placement tolerance taken: beyond 10 mm off centre the hand grasps another object."""
+MAX_SIZE_M = 0.005
+"""The largest size tolerance taken: a description 5 mm off is another object."""
+MIN_SOURCE_POINTS = 4.0
+"""Effective simulations beyond the terms fitted that telling the width's sources apart needs."""
 PRECISION = 0.15
 """The widest 95 % interval a number is given with: within 15 % of the estimate either way (in log E).
 Foam makers state a grade's hardness to about this tolerance, so a modulus this close tells a lab
@@ -122,6 +128,39 @@ class ImpreciseEstimateError(EstimateError):
     def __init__(self, message: str, estimate: ModulusEstimate) -> None:
         super().__init__(message)
         self.estimate = estimate
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What the run cannot tell apart, drawn anew for every simulation: how far the object may sit from
+    the palm's centre (either axis), how far every described extent may be off (a primitive's; a mesh is
+    its scan), and the Poisson ratios it may have. The interval holds only as far as these do: a lab that
+    knows its object better may state it, and gets the narrower interval it has earned."""
+
+    placement_m: float = PLACEMENT_TOLERANCE_M
+    size_m: float = SIZE_TOLERANCE_M
+    poisson: tuple[float, float] = POISSON_RANGE
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.placement_m) and 0.0 <= self.placement_m <= MAX_PLACEMENT_M):
+            raise ConfigError(
+                f"placement tolerance must be 0-{MAX_PLACEMENT_M * 1e3:g} mm, got {self.placement_m * 1e3:g}"
+            )
+        if not (math.isfinite(self.size_m) and 0.0 <= self.size_m <= MAX_SIZE_M):
+            raise ConfigError(f"size tolerance must be 0-{MAX_SIZE_M * 1e3:g} mm, got {self.size_m * 1e3:g}")
+        low, high = self.poisson
+        if not (math.isfinite(low) and math.isfinite(high) and 0.0 <= low <= high < 0.5):
+            raise ConfigError(
+                f"Poisson ratios must satisfy 0 <= low <= high < 0.5 (an elastic solid), got {low:g}-{high:g}"
+            )
+
+    def to_json(self) -> dict:
+        """As the results file records them."""
+        return {
+            "placement_tolerance_m": self.placement_m,
+            "size_tolerance_m": self.size_m,
+            "poisson_range": list(self.poisson),
+        }
 
 
 @dataclass
@@ -146,6 +185,10 @@ class ModulusEstimate:
     wall_s: float
     cycles: int
     twin_young_pa: float | None = None
+    width_sources: dict[str, float] | None = None
+    """Which tolerance the nuisance's width comes from: each one's share of the like simulations' variance
+    about the power law (width_sources), and `grasp`, what none of them explains; None where too few
+    simulations count to tell."""
 
     def to_json(self) -> dict:
         """The `material` part of the results file."""
@@ -160,6 +203,7 @@ class ModulusEstimate:
             "simulations": [list(p) for p in self.simulations],
             "cycles": self.cycles,
             "wall_s": self.wall_s,
+            "width_sources": self.width_sources,
         }
         if self.twin_young_pa is not None:
             out["twin_young_pa"] = self.twin_young_pa
@@ -168,13 +212,14 @@ class ModulusEstimate:
         return out
 
 
-def describe(foam: FoamParams) -> FoamParams:
-    """What a lab knows of its object, for the twin: shape and size (or mesh); the rest nominal."""
+def describe(foam: FoamParams, tolerances: Tolerances | None = None) -> FoamParams:
+    """What a lab knows of its object, for the twin: shape and size (or mesh); the rest nominal (the
+    Poisson ratio the middle of the tolerated range)."""
     return replace(
         foam,
         name=foam.name or "object",
         young_pa=REFERENCE_PA,
-        poisson=sum(POISSON_RANGE) / 2,
+        poisson=sum((tolerances or Tolerances()).poisson) / 2,
         damping=0.002,
         density_kg_m3=30.0,
         friction=0.8,
@@ -192,25 +237,69 @@ def like_grasp_weights(grasps: np.ndarray, run_shares: np.ndarray) -> np.ndarray
     return np.exp(-0.5 * (distance / SHARE_TOLERANCE) ** 2)
 
 
-def nuisance_draws(base: FoamParams, young_pa: np.ndarray, seed: int) -> list[FoamParams]:
+def nuisance_draws(
+    base: FoamParams, young_pa: np.ndarray, seed: int, tolerances: Tolerances | None = None
+) -> list[FoamParams]:
     """The described object at each modulus, its placement, size and Poisson ratio drawn anew for each
     (a Latin hypercube over their tolerances: every stratum of each sampled once)."""
     from scipy.stats import qmc
 
+    tol = tolerances or Tolerances()
     unit = qmc.LatinHypercube(d=4, seed=seed).random(len(young_pa))
     foams = []
     for e, (ux, uy, unu, usize) in zip(young_pa, unit, strict=True):
-        grow = 0.0 if base.shape == "mesh" else (2 * usize - 1) * SIZE_TOLERANCE_M  # a mesh is its scan
+        grow = 0.0 if base.shape == "mesh" else (2 * usize - 1) * tol.size_m  # a mesh is its scan
         foams.append(
             replace(
                 base,
                 young_pa=float(np.clip(e, *RANGE_PA)),
-                placement_m=((2 * ux - 1) * PLACEMENT_TOLERANCE_M, (2 * uy - 1) * PLACEMENT_TOLERANCE_M),
-                poisson=POISSON_RANGE[0] + unu * (POISSON_RANGE[1] - POISSON_RANGE[0]),
+                placement_m=((2 * ux - 1) * tol.placement_m, (2 * uy - 1) * tol.placement_m),
+                poisson=tol.poisson[0] + unu * (tol.poisson[1] - tol.poisson[0]),
                 size_m=tuple(v + grow for v in base.size_m),
             )
         )
     return foams
+
+
+def nuisance_matrix(foams: list[FoamParams], base: FoamParams) -> dict[str, np.ndarray]:
+    """Each simulation's draw of what the run cannot tell apart, one column per source: placement x and
+    y (m), size (m off the description) and Poisson ratio."""
+    return {
+        "placement x": np.array([f.placement_m[0] for f in foams]),
+        "placement y": np.array([f.placement_m[1] for f in foams]),
+        "size": np.array([f.size_m[0] - base.size_m[0] for f in foams]),
+        "poisson": np.array([f.poisson for f in foams]),
+    }
+
+
+def width_sources(
+    residual: np.ndarray, weight: np.ndarray, nuisances: dict[str, np.ndarray]
+) -> dict[str, float] | None:
+    """Each tolerance's share of the simulations' weighted variance about the power law: a weighted linear
+    regression of the residuals on the nuisances drawn, each term's variance beta^2 var(x) as a share
+    (standardised regression coefficients, the first-order sensitivity indices of a near-linear response:
+    Saltelli et al. 2008, Global Sensitivity Analysis: The Primer, 1.2.5). Placement x and y are summed;
+    `grasp` is what the regression leaves: the grasp's own jitter and branches, and non-linearity. None
+    where the weights' effective number does not exceed the terms fitted by MIN_SOURCE_POINTS."""
+    names = [k for k, v in nuisances.items() if np.ptp(v) > 0]  # a tolerance of 0 draws nothing
+    if not weight.sum() > MIN_WEIGHT or effective_count(weight) < len(names) + 1 + MIN_SOURCE_POINTS:
+        return None
+    w = weight / weight.sum()
+    centred = {k: nuisances[k] - float(w @ nuisances[k]) for k in names}
+    r = residual - float(w @ residual)
+    total = float(w @ r**2)
+    if not total > 0.0:
+        return None
+    x = np.column_stack([centred[k] for k in names]) if names else np.zeros((len(r), 0))
+    beta = np.linalg.lstsq(x * np.sqrt(w)[:, None], r * np.sqrt(w), rcond=None)[0] if names else []
+    parts = {k: float(w @ (centred[k] * b) ** 2) for k, b in zip(names, beta, strict=True)}
+    explained = min(1.0 - float(w @ (r - x @ np.asarray(beta)) ** 2) / total, 1.0) if names else 0.0
+    scale = max(explained, 0.0) / sum(parts.values()) if sum(parts.values()) > 0 else 0.0
+    shares = {"placement": 0.0, "size": 0.0, "poisson": 0.0}
+    for k, v in parts.items():
+        shares["placement" if k.startswith("placement") else k] += scale * v
+    shares["grasp"] = 1.0 - sum(shares.values())
+    return {k: v for k, v in shares.items() if k == "grasp" or any(n.startswith(k) for n in names)}
 
 
 def weighted_power_law(
@@ -261,7 +350,7 @@ def predictive_sigma(
     interval's 1 + 1/n + (x0 - mean)^2 / (n var) in log E), and the whole widened by Student's t for n.
     Infinite where no simulation counts."""
     residual = log_s - (power * log_e + intercept)
-    weight = like * np.exp(-0.5 * ((log_s - log_s_run) / (power * LOCAL_LOG_E)) ** 2)
+    weight = predictive_weights(log_s, like, power, log_s_run)
     if not weight.sum() > MIN_WEIGHT:
         return math.inf
     n_eff = effective_count(weight)
@@ -273,6 +362,12 @@ def predictive_sigma(
     log_e_run = (log_s_run - intercept) / power
     line = 1.0 / n_eff + (log_e_run - centre) ** 2 / (n_eff * spread)
     return scatter_widening(weight) * math.sqrt(scatter * (1.0 + line)) / power
+
+
+def predictive_weights(log_s: np.ndarray, like: np.ndarray, power: float, log_s_run: float) -> np.ndarray:
+    """How much each simulation says of where the run's S puts its modulus: how like the run's its grasp
+    is, times a Gaussian kernel on log S about the run's (a factor 2 of E along the power law)."""
+    return like * np.exp(-0.5 * ((log_s - log_s_run) / (power * LOCAL_LOG_E)) ** 2)
 
 
 def scatter_widening(weight: np.ndarray) -> float:
@@ -330,6 +425,22 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, np.ndarray, str]:
         shutil.rmtree(scratch, ignore_errors=True)
 
 
+SOURCE_WORDS = {
+    "placement": "the placement tolerance (--placement-tolerance-mm)",
+    "size": "the size tolerance (--size-tolerance-mm)",
+    "poisson": "the Poisson ratios tolerated (--poisson)",
+    "grasp": "none of the tolerances (the twin's grasp settling otherwise: its own jitter and branches)",
+}
+
+
+def _largest_source(sources: dict[str, float] | None) -> str:
+    """', mostly <source> (<share> of the nuisance's variance)', or nothing where it cannot be told."""
+    if not sources:
+        return ""
+    name = max(sources, key=sources.__getitem__)
+    return f"; the nuisance mostly from {SOURCE_WORDS[name]}: {100 * sources[name]:.0f} % of its variance"
+
+
 def _failed(why: str, reasons: list[str]) -> EstimateError:
     """The twin's own grasp of the described object failed where the estimate needs it."""
     return EstimateError(f"{why}; the twin's own grasp of the described object fails {reasons[0]}")
@@ -365,19 +476,27 @@ def estimate_modulus(
     workers: int = 2,
     progress: Callable[[int, int], None] | None = None,
     precision: float | None = PRECISION,
+    tolerances: Tolerances | None = None,
 ) -> ModulusEstimate:
     """E and its 95 % interval from a compress run (module docstring).
 
     `description`: the object (shape, size or mesh); default the run's own record of it, of which only
     the geometry is used. `progress(done, planned)` after every batch of simulations. `precision`: the
     largest relative half-width of the 95 % interval a number is given with (None: any); wider ends in
-    ImpreciseEstimateError, which carries the estimate and says its interval."""
+    ImpreciseEstimateError, which carries the estimate and says its interval. `tolerances`: what the run
+    cannot tell apart (default Tolerances(): 3 mm, 1 mm, Poisson 0.2-0.35)."""
     started = time.perf_counter()
+    tol = tolerances or Tolerances()
     run = Run(run_path)
     check_run_metadata(run.info, run.path / "run.json")
     profile = _profile(run)
     measured, measured_sigma, cycles, contact, shares = run_stiffness(run.path)
-    base = describe(description if description is not None else foam_of_run(run))
+    base = describe(description if description is not None else foam_of_run(run), tol)
+    if base.shape != "mesh" and tol.size_m >= 0.25 * min(base.size_m):
+        raise ConfigError(
+            f"a size tolerance of {tol.size_m * 1e3:g} mm is a quarter or more of the object's smallest "
+            f"extent ({min(base.size_m) * 1e3:g} mm): describe the object more closely"
+        )
     duration_s = _window_end_s(run, profile, cycles) + TAIL_S
     truth = (
         (run.metadata.get("object") or {}).get("young_pa") if run.metadata.get("backend") == "sim" else None
@@ -411,7 +530,7 @@ def estimate_modulus(
         drawn: list[FoamParams] = []
         for index, (spread, count) in enumerate(ROUNDS):
             foams = nuisance_draws(
-                base, estimate * np.geomspace(1 / spread, spread, count), NUISANCE_SEED + index
+                base, estimate * np.geomspace(1 / spread, spread, count), NUISANCE_SEED + index, tol
             )
             simulate(foams)
             drawn += foams
@@ -467,6 +586,11 @@ def estimate_modulus(
         "nuisance": predictive_sigma(log_e, log_s, like, power, intercept, math.log(measured)),
     }
     sigma["total"] = math.sqrt(sum(v**2 for v in sigma.values()))
+    by_source = width_sources(
+        log_s - (power * log_e + intercept),
+        predictive_weights(log_s, like, power, math.log(measured)),
+        nuisance_matrix(held, base),
+    )
     half = Z95 * sigma["total"]
     if 2 * half > math.log(RANGE_PA[1] / RANGE_PA[0]):
         raise EstimateError(
@@ -485,9 +609,8 @@ def estimate_modulus(
             "shape": base.shape,
             "size_m": list(base.size_m),
             "mesh_file": base.mesh_file,
-            "poisson_range": list(POISSON_RANGE),
-            "placement_tolerance_m": PLACEMENT_TOLERANCE_M,
-            "size_tolerance_m": 0.0 if base.shape == "mesh" else SIZE_TOLERANCE_M,
+            **tol.to_json(),
+            "size_tolerance_m": 0.0 if base.shape == "mesh" else tol.size_m,
         },
         simulations=sorted(
             (f.young_pa, sims[key(f)][0], float(w)) for f, w in zip(held, weight, strict=True)
@@ -495,6 +618,7 @@ def estimate_modulus(
         wall_s=time.perf_counter() - started,
         cycles=cycles,
         twin_young_pa=float(truth) if truth else None,
+        width_sources=by_source,
     )
     if precision is not None and half > math.log1p(precision):
         low, high = (v / 1e3 for v in result.ci95_pa)
@@ -502,7 +626,7 @@ def estimate_modulus(
         raise ImpreciseEstimateError(
             f"{run.path}: E lies within {low:.3g}-{high:.3g} kPa (95 %), too wide for a number within "
             f"{100 * precision:.3g} % (1-sigma in log E: {sources}; the squeeze stiffness grows as E^"
-            f"{power:.2f} here); give a larger --precision for the number anyway",
+            f"{power:.2f} here{_largest_source(by_source)}); give a larger --precision for the number anyway",
             result,
         )
     return result

@@ -53,6 +53,10 @@ def test_the_spheres_modulus_is_recovered_within_its_interval(sphere_identified)
     assert m["sigma_log"]["total"] == pytest.approx(math.sqrt(sum(v**2 for v in parts.values())))
     low, high = m["ci95_pa"]
     assert math.log(high / low) / 2 == pytest.approx(1.959964 * m["sigma_log"]["total"], rel=1e-6)
+    sources = m["width_sources"]  # the default tolerances: placement, size and Poisson ratio drawn
+    assert set(sources) == {"placement", "size", "poisson", "grasp"}, sources
+    assert sum(sources.values()) == pytest.approx(1.0) and all(0.0 <= v <= 1.0 for v in sources.values())
+    assert m["object"]["size_tolerance_m"] == 0.001 and m["object"]["poisson_range"] == [0.2, 0.35]
 
 
 def test_the_squeeze_stiffness_is_the_foams_not_the_placements(tmp_path):
@@ -203,6 +207,66 @@ def test_each_simulation_draws_what_the_run_cannot_tell_apart_over_its_tolerance
     assert nuisance_draws(base, young, seed=1) == foams and nuisance_draws(base, young, seed=2) != foams
     bumpy = describe(mesh_object(_bumpy_sphere_stl(tmp_path / "bumpy.stl"), get_object("block")))
     assert all(f.size_m == bumpy.size_m for f in nuisance_draws(bumpy, young, seed=1))
+
+
+def test_the_tolerances_stated_are_what_the_simulations_draw_and_bad_ones_are_refused():
+    """A lab that knows its object better states it: the draws stay inside the tolerances given (none
+    where one is 0), the first simulation takes the middle of the Poisson ratios; a tolerance no object
+    has is a one-line ConfigError."""
+    from twin.interface.errors import ConfigError
+    from twin.sim.modulus import Tolerances, describe, nuisance_draws
+
+    tight = Tolerances(placement_m=0.0, size_m=0.0005, poisson=(0.3, 0.3))
+    base = describe(get_object("block"), tight)
+    assert base.poisson == 0.3
+    foams = nuisance_draws(base, np.geomspace(10e3, 90e3, 12), seed=1, tolerances=tight)
+    assert all(f.placement_m == (0.0, 0.0) and f.poisson == 0.3 for f in foams)
+    grow = np.array([f.size_m[0] - base.size_m[0] for f in foams])
+    assert np.abs(grow).max() <= 0.0005 and np.ptp(grow) > 0.0008  # spread over the whole +-0.5 mm
+    for bad, said in (
+        ({"placement_m": -0.001}, "placement tolerance must be 0-10 mm"),
+        ({"size_m": math.nan}, "size tolerance must be 0-5 mm"),
+        ({"poisson": (0.35, 0.2)}, "0 <= low <= high < 0.5"),
+        ({"poisson": (0.2, 0.5)}, "0 <= low <= high < 0.5"),
+    ):
+        with pytest.raises(ConfigError, match=said):
+            Tolerances(**bad)
+
+
+def test_a_size_tolerance_a_quarter_of_the_object_is_refused_before_any_simulation(sphere_run):
+    from twin.interface.errors import ConfigError
+    from twin.sim.modulus import Tolerances
+
+    tiny = get_object("sphere").with_overrides(size_m=(0.016, 0.016, 0.016))
+    with pytest.raises(ConfigError, match="a quarter or more of the object's smallest extent"):
+        estimate_modulus(sphere_run, description=tiny, tolerances=Tolerances(size_m=0.004))
+
+
+def test_the_width_is_told_apart_by_the_tolerance_that_moves_the_stiffness():
+    """Residuals about the power law made of a known part per nuisance (size 3x the Poisson ratio's in
+    standard deviation, placement nothing) and a little of the grasp's own: the sources come back in
+    that proportion (shares of the variance: 0.9 / 0.1 less the grasp's), and sum to 1. A mesh draws no
+    size, so it has no size source; too few simulations that count tell nothing (None)."""
+    from twin.sim.modulus import Tolerances, describe, nuisance_draws, nuisance_matrix, width_sources
+
+    base = describe(get_object("block"))
+    foams = nuisance_draws(base, np.full(48, 40e3), seed=3)
+    nz = nuisance_matrix(foams, base)
+    z = {k: (v - v.mean()) / v.std() for k, v in nz.items()}
+    jitter = np.random.default_rng(0).normal(0.0, 0.002, len(foams))
+    residual = 0.03 * z["size"] + 0.01 * z["poisson"] + jitter
+    sources = width_sources(residual, np.ones(len(foams)), nz)
+    assert set(sources) == {"placement", "size", "poisson", "grasp"}
+    assert sum(sources.values()) == pytest.approx(1.0)
+    assert sources["size"] == pytest.approx(0.9 * 0.0010 / (0.0010 + 0.002**2), abs=0.03), sources
+    assert sources["poisson"] == pytest.approx(0.1 * 0.0010 / (0.0010 + 0.002**2), abs=0.02), sources
+    assert sources["placement"] < 0.02 and 0.0 <= sources["grasp"] < 0.03, sources
+    grasp_only = width_sources(jitter, np.ones(len(foams)), nz)
+    assert grasp_only["grasp"] > 0.7, grasp_only  # nothing drawn explains pure jitter
+    mesh_like = {**nz, "size": np.zeros(len(foams))}
+    assert "size" not in width_sources(residual, np.ones(len(foams)), mesh_like)
+    assert width_sources(residual, np.eye(len(foams))[0] + 1e-9, nz) is None
+    assert Tolerances().to_json()["poisson_range"] == [0.2, 0.35]
 
 
 def test_a_scatter_read_from_few_like_simulations_widens_the_interval():

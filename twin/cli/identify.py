@@ -47,25 +47,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "what the run cannot tell apart, drawn over in every simulation (the interval holds as far as "
         "they do)",
     )
-    g.add_argument(
-        "--placement-tolerance-mm",
-        type=finite(0.0, 10.0),
-        default=3.0,
-        metavar="MM",
-        help="the object sits within this of the palm's centre, either axis (default 3)",
-    )
-    g.add_argument(
-        "--size-tolerance-mm",
-        type=finite(0.0, 5.0),
-        default=1.0,
-        metavar="MM",
-        help="every described extent is within this of the object's (default 1; a mesh is its own scan)",
-    )
+    for flag, said in (  # their bounds and defaults are twin.sim.modulus.Tolerances' (checked there)
+        (
+            "--placement-tolerance-mm",
+            "the object sits within MM of the palm's centre, either axis (default 3)",
+        ),
+        (
+            "--size-tolerance-mm",
+            "every described extent is within MM of the object's (default 1; not a mesh)",
+        ),
+    ):
+        g.add_argument(flag, type=finite(0.0), metavar="MM", help=said)
     g.add_argument(
         "--poisson",
-        type=finite(0.0, 0.5, max_inclusive=False),
+        type=finite(0.0),
         nargs=2,
-        default=(0.2, 0.35),
         metavar=("LOW", "HIGH"),
         help="the foam's Poisson ratio lies within these (default 0.2 0.35: flexible polyurethane foams)",
     )
@@ -100,9 +96,12 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise ConfigError("--object-mesh or --shape/--size-mm, not both")
     from twin.sim.modulus import Tolerances
 
-    args.tolerances = Tolerances(
-        args.placement_tolerance_mm / 1e3, args.size_tolerance_mm / 1e3, tuple(args.poisson)
-    )
+    stated = {
+        "placement_m": None if args.placement_tolerance_mm is None else args.placement_tolerance_mm / 1e3,
+        "size_m": None if args.size_tolerance_mm is None else args.size_tolerance_mm / 1e3,
+        "poisson": None if args.poisson is None else tuple(args.poisson),
+    }
+    args.tolerances = Tolerances(**{k: v for k, v in stated.items() if v is not None})
     metadata = run_metadata(args.run_dir, "RUN")
     if args.free is not None:
         name = experiment_name(run_metadata(args.free, "--free"))

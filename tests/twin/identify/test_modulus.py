@@ -143,6 +143,21 @@ def test_a_precision_that_is_not_a_positive_number_is_one_line(sphere_run, tmp_p
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--size-tolerance-mm", "9"], "size tolerance must be 0-5 mm, got 9"),
+        (["--placement-tolerance-mm", "-1"], "--placement-tolerance-mm: must be a finite number >= 0"),
+        (["--poisson", "0.3", "0.6"], "0 <= low <= high < 0.5 (an elastic solid), got 0.3-0.6"),
+    ],
+)
+def test_a_tolerance_no_object_has_is_one_line(flags, message, sphere_run, tmp_path, capsys):
+    argv = ["identify", str(sphere_run), "--no-progress", "--out", str(tmp_path / "out"), *flags]
+    assert main(argv) == 2
+    _one_line(capsys, message)
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_reason():
     """Where the twin's own grasp fails (a 20 mm sphere slips between the fingers), the simulation is a
     missing point that says why, so one bad modulus in a bracket does not end the estimate."""

@@ -177,7 +177,7 @@ class SqueezeEnv(gym.Env):
                 return
             moved = (position < best - OPEN_PROGRESS_COUNTS) & (position >= OPEN_COUNTS)
             since_progress = 0 if moved.any() else since_progress + 1
-            best = np.where(moved | ~np.isfinite(best), position, best)
+            best = np.where(moved, position, best)
             if since_progress * period_s >= stall_s:
                 break
         raise RuntimeError(

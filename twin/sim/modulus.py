@@ -290,10 +290,10 @@ def width_sources(
     total = float(w @ r**2)
     if not total > 0.0:
         return None
-    x = np.column_stack([centred[k] for k in names]) if names else np.zeros((len(r), 0))
-    beta = np.linalg.lstsq(x * np.sqrt(w)[:, None], r * np.sqrt(w), rcond=None)[0] if names else []
+    x = np.column_stack([centred[k] for k in names] or [np.zeros((len(r), 0))])
+    beta = np.linalg.lstsq(x * np.sqrt(w)[:, None], r * np.sqrt(w), rcond=None)[0]
     parts = {k: float(w @ (centred[k] * b) ** 2) for k, b in zip(names, beta, strict=True)}
-    explained = min(1.0 - float(w @ (r - x @ np.asarray(beta)) ** 2) / total, 1.0) if names else 0.0
+    explained = 1.0 - float(w @ (r - x @ beta) ** 2) / total
     scale = max(explained, 0.0) / sum(parts.values()) if sum(parts.values()) > 0 else 0.0
     shares = {"placement": 0.0, "size": 0.0, "poisson": 0.0}
     for k, v in parts.items():

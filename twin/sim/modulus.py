@@ -18,8 +18,9 @@ with nothing tuned per shape or size: the twin's mechanics carry the geometry.
    as the hand did (their fingertip shares within SHARE_TOLERANCE of the run's), near the estimate and
    robustly (Tukey's biweight), and inverted at the run's S: approximate Bayesian computation with a
    regression adjustment (Beaumont, Zhang & Balding 2002, Genetics 162:2025), in two rounds: a
-   wide one (a factor 9 of E) around a first estimate from one simulation, and a narrow one (a factor
-   3) around the first round's estimate.
+   wide one (a factor 9 of E) around a first estimate from one simulation (a medium foam; a firm or
+   a soft one where the twin cannot hold the object at the first), and a narrow one (a factor 3)
+   around the first round's estimate; a third narrow one where the two found too few like grasps.
 3. The 95 % interval adds in quadrature, in log E: the statistic's own noise (the spread of its
    cycles), and where the simulations put a run of the run's S (predictive_sigma): their scatter
    about the power law, counted by how like the run's their grasp and their S are, the ones the robust
@@ -67,10 +68,18 @@ RANGE_PA = (5e3, 5e5)
 margin; an estimate outside means the object is not such a foam (or the run is not what it says)."""
 REFERENCE_PA = 4e4
 """The first simulation's modulus: a medium foam (twin.sim.foam's library)."""
+FALLBACK_PA = (1.2e5, 1.3e4)
+"""Where the twin's grasp of the described object fails at REFERENCE_PA (a small egg squirts out of a
+medium foam's grasp), the first estimate comes from these in turn: a firm foam, then a soft one, a
+factor 3 either way."""
 ROUNDS = ((3.0, 12), (1.7, 12))
 """Each round's spread of moduli about the estimate (a factor either way) and its simulations: a wide
 first round reaches, from a first estimate read off a grasp that settled otherwise, the moduli at which
 the twin grasps as the hand did; a narrow second one fills in the power law where it meets the run."""
+EXTRA_ROUNDS = 1
+"""Narrow rounds more (as the last of ROUNDS, new draws) where the planned ones found too few
+simulations grasping the object as the hand did: a grasp that settles on a rarer branch (one fingertip
+barely touching) is met by fewer draws, not none, so drawing on is the rejection sampler's answer."""
 CYCLES = 3
 """Compression cycles compared: enough to average the gauges' noise, few enough to be quick."""
 TAIL_S = 2.5
@@ -441,6 +450,20 @@ def _largest_source(sources: dict[str, float] | None) -> str:
     return f"; the nuisance mostly from {SOURCE_WORDS[name]}: {100 * sources[name]:.0f} % of its variance"
 
 
+def first_estimate(
+    base: FoamParams, measured_n_m: float, stiffness_n_m: Callable[[FoamParams], float]
+) -> tuple[float | None, list[FoamParams]]:
+    """E to first order (S ~ E) from one simulation at REFERENCE_PA, or at the FALLBACK_PA in turn where
+    the twin's grasp fails (`stiffness_n_m` NaN); None where it fails at all. Also the foams tried."""
+    tried: list[FoamParams] = []
+    for reference in (REFERENCE_PA, *FALLBACK_PA):
+        tried.append(replace(base, young_pa=reference))
+        s_ref = stiffness_n_m(tried[-1])
+        if math.isfinite(s_ref) and s_ref > 0:
+            return reference * measured_n_m / s_ref, tried
+    return None, tried
+
+
 def _failed(why: str, reasons: list[str]) -> EstimateError:
     """The twin's own grasp of the described object failed where the estimate needs it."""
     return EstimateError(f"{why}; the twin's own grasp of the described object fails {reasons[0]}")
@@ -522,13 +545,16 @@ def estimate_modulus(
                 progress(len(sims), max(planned, len(sims)))
             return [sims[key(f)] for f in foams]
 
-        first = replace(base, young_pa=REFERENCE_PA)
-        ((s_ref, *_),) = simulate([first])
-        if not math.isfinite(s_ref):
-            raise _failed(f"{run.path}: no first estimate", reasons([first]))
-        estimate = REFERENCE_PA * measured / s_ref  # S ~ E to first order
+        estimate, tried = first_estimate(base, measured, lambda foam: simulate([foam])[0][0])
+        if estimate is None:
+            moduli = "/".join(f"{f.young_pa / 1e3:.3g}" for f in tried)
+            raise _failed(f"{run.path}: no first estimate (tried E = {moduli} kPa)", reasons(tried))
         drawn: list[FoamParams] = []
-        for index, (spread, count) in enumerate(ROUNDS):
+        rounds = [*ROUNDS, *[ROUNDS[-1]] * EXTRA_ROUNDS]
+        fitted = False
+        for index, (spread, count) in enumerate(rounds):
+            if index >= len(ROUNDS) and fitted:  # the extra rounds only where the planned ones fell short
+                break
             foams = nuisance_draws(
                 base, estimate * np.geomspace(1 / spread, spread, count), NUISANCE_SEED + index, tol
             )
@@ -544,7 +570,8 @@ def estimate_modulus(
             fitted = weight.sum() >= MIN_LIKE_GRASPS and power > 0.2
             if fitted:
                 estimate = math.exp((math.log(measured) - intercept) / power)
-            elif index < len(ROUNDS) - 1:  # too few like grasps for a slope: look again around the likest
+            elif index < len(rounds) - 1 and (index < len(ROUNDS) - 1 or weight.sum() < MIN_LIKE_GRASPS):
+                # too few like grasps for a slope: look again around the likest
                 estimate = float(np.clip(math.exp(float(log_e[np.argmax(like)])), *RANGE_PA))
             elif weight.sum() < MIN_LIKE_GRASPS:
                 raise EstimateError(

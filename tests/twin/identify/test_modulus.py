@@ -172,6 +172,27 @@ def test_a_twin_simulation_that_loses_its_object_is_a_missing_point_with_its_rea
     assert held > 0 and why == "" and abs(shares.sum() - 1.0) < 1e-9 and (shares > 0).all()
 
 
+def test_the_first_estimate_falls_back_to_a_firm_then_a_soft_foam_where_the_twin_cannot_hold_it():
+    """A twin that cannot hold the object at a medium foam's modulus (an egg squirting out) gives the
+    first estimate from a firm foam, or a soft one; one that holds it at none gives none, saying which
+    moduli it tried. S ~ E to first order from the first that holds."""
+    from twin.sim import modulus
+
+    base = modulus.describe(get_object("sphere"))
+    held_above = lambda foam: 2.0 * foam.young_pa**0.9 if foam.young_pa > 5e4 else math.nan  # noqa: E731
+    estimate, tried = modulus.first_estimate(base, 3000.0, held_above)
+    assert [f.young_pa for f in tried] == [modulus.REFERENCE_PA, modulus.FALLBACK_PA[0]]
+    assert estimate == pytest.approx(modulus.FALLBACK_PA[0] * 3000.0 / held_above(tried[-1]))
+    held_below = lambda foam: 2.0 * foam.young_pa if foam.young_pa < 2e4 else math.nan  # noqa: E731
+    estimate, tried = modulus.first_estimate(base, 3000.0, held_below)
+    assert len(tried) == 3 and estimate == pytest.approx(1500.0)
+    # the real twin: a 20 mm sphere slips between the fingers at every modulus tried
+    modulus._init_worker(CompressProfile(), duration_s=9.0, cycles=2)
+    tiny = modulus.describe(get_object("sphere").with_overrides(size_m=(0.02, 0.02, 0.02)))
+    estimate, tried = modulus.first_estimate(tiny, 3000.0, lambda foam: modulus._simulate(foam)[0])
+    assert estimate is None and [f.young_pa for f in tried] == [modulus.REFERENCE_PA, *modulus.FALLBACK_PA]
+
+
 def test_the_power_law_leaves_out_a_simulation_whose_grasp_settled_off_it():
     """A sweep's S(E) with one point collapsed (a clutch that held: a third of the law's S, with the
     run's own fingertip shares) is read as the law through the others, not bent by it."""

@@ -459,7 +459,7 @@ def first_estimate(
     for reference in (REFERENCE_PA, *FALLBACK_PA):
         tried.append(replace(base, young_pa=reference))
         s_ref = stiffness_n_m(tried[-1])
-        if math.isfinite(s_ref) and s_ref > 0:
+        if math.isfinite(s_ref):  # _simulate gives a positive S, or NaN and why
             return reference * measured_n_m / s_ref, tried
     return None, tried
 

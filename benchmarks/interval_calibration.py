@@ -1,0 +1,82 @@
+"""The identification interval's calibration: split conformal prediction on hidden benchmark runs.
+
+Each row of interval_calibration.csv is a hidden run of benchmarks/identification.py that ended with a
+95 % interval (a number or the interval alone): its estimate (the number, or the one withheld), its
+interval and the twin's truth. Draws 2038 and 2039, read off BENCHMARKS.md as committed in 981c082 and
+94e6c6b (values to the table's 3-4 significant figures), both with the interval before calibration
+(interval_scale 1). A run's score is its error in units of its own interval's sigma before calibration,
+|log(E / E_true)| / sigma; the calibrated multiplier of sigma is the ceil(0.95 (n + 1))-th smallest
+score, so that on a new run exchangeable with these the interval holds the truth with probability at
+least 95 % (split conformal prediction with a locally weighted score: Lei, G'Sell, Rinaldo, Tibshirani &
+Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). twin.sim.modulus.INTERVAL_SCALE is that
+multiplier over Z95; tests/benchmarks/test_interval_calibration.py holds the two together.
+
+`python benchmarks/interval_calibration.py` prints the quantile and what it does on these runs.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).with_name("interval_calibration.csv")
+LEVEL = 0.95
+"""The interval's nominal coverage."""
+
+
+def load(path: Path = DATA) -> list[dict]:
+    """The calibration runs, values as floats (draw and shape as read)."""
+    with path.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    numeric = ("true_young_pa", "estimate_pa", "ci95_low_pa", "ci95_high_pa", "interval_scale")
+    return [r | {k: float(r[k]) for k in numeric} for r in rows]
+
+
+def raw_sigma(row: dict) -> float:
+    """The run's 1-sigma in log E before calibration: its interval's half-width in log E over Z95, undone
+    of the scale it was drawn with."""
+    from twin.sim.modulus import Z95
+
+    return math.log(row["ci95_high_pa"] / row["ci95_low_pa"]) / (2 * Z95 * row["interval_scale"])
+
+
+def scores(rows: list[dict]) -> np.ndarray:
+    """Each run's error in units of its sigma before calibration: |log(E / E_true)| / sigma."""
+    return np.array([abs(math.log(r["estimate_pa"] / r["true_young_pa"])) / raw_sigma(r) for r in rows])
+
+
+def conformal_quantile(score: np.ndarray, level: float = LEVEL) -> float:
+    """The ceil(level (n + 1))-th smallest score: split conformal prediction's finite-sample quantile. With
+    too few scores for the level (rank beyond n) no finite multiplier is guaranteed: infinite."""
+    rank = math.ceil(level * (len(score) + 1))
+    return float(np.sort(score)[rank - 1]) if rank <= len(score) else math.inf
+
+
+def main() -> None:
+    from twin.sim.modulus import INTERVAL_SCALE, PRECISION, Z95
+
+    rows = load()
+    score = scores(rows)
+    q = conformal_quantile(score)
+    print(
+        f"{len(rows)} calibration runs; |z| median {np.median(score):.2f}, 95 % quantile (conformal) {q:.3f}"
+    )
+    print(f"implied INTERVAL_SCALE {q / Z95:.3f} (twin.sim.modulus: {INTERVAL_SCALE})")
+    error = np.array([math.log(r["estimate_pa"] / r["true_young_pa"]) for r in rows])
+    sigma = np.array([raw_sigma(r) for r in rows])
+    for scale in (1.0, INTERVAL_SCALE):
+        half = Z95 * scale * sigma
+        given = half <= math.log1p(PRECISION)
+        shown = np.abs(np.expm1(error[given]))
+        print(
+            f"scale {scale:.3f}: covered {np.mean(np.abs(error) <= half):.1%} of {len(rows)}; numbers given "
+            f"{given.sum()} (median {np.median(shown):.1%}, max {shown.max():.1%}, covered "
+            f"{np.mean(np.abs(error[given]) <= half[given]):.1%}) [in-sample]"
+        )
+
+
+if __name__ == "__main__":
+    main()

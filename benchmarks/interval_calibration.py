@@ -11,7 +11,8 @@ least 95 % (split conformal prediction with a locally weighted score: Lei, G'Sel
 Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). twin.sim.modulus.INTERVAL_SCALE is that
 multiplier over Z95; tests/benchmarks/test_interval_calibration.py holds the two together.
 
-`python benchmarks/interval_calibration.py` prints the quantile and what it does on these runs.
+`python benchmarks/interval_calibration.py` prints the quantile and what it does on these runs, and draws
+the scores against a calibrated Gaussian's (interval_calibration.png).
 """
 
 from __future__ import annotations
@@ -78,5 +79,39 @@ def main() -> None:
         )
 
 
+def plot(score: np.ndarray, scale: float, path: Path) -> None:
+    """The scores' empirical distribution against |N(0, 1)|'s (what a calibrated Gaussian interval's
+    errors would follow), with the 95 % half-width before (1.96) and after calibration."""
+    from matplotlib.figure import Figure
+    from scipy.stats import halfnorm
+
+    from twin.sim.modulus import Z95
+
+    fig = Figure(figsize=(6.5, 4.5))
+    ax = fig.subplots()
+    x = np.sort(score)
+    ax.step(
+        x, np.arange(1, len(x) + 1) / len(x), where="post", label=f"{len(x)} hidden runs (draws 2038-2039)"
+    )
+    grid = np.linspace(0, 2.5, 200)
+    ax.plot(grid, halfnorm.cdf(grid), "k--", lw=1, label="calibrated Gaussian: |z| ~ |N(0, 1)|")
+    ax.axvline(Z95, color="0.5", lw=1, label=f"95 % half-width before: {Z95:.2f} sigma")
+    ax.axvline(scale * Z95, color="C3", lw=1.5, label=f"after (conformal): {scale * Z95:.2f} sigma")
+    ax.axhline(LEVEL, color="0.8", lw=0.8)
+    ax.set(
+        xlabel="|log(E / E_true)| / sigma",
+        ylabel="share of runs",
+        xlim=(0, 2.5),
+        ylim=(0, 1.02),
+        title="twin identify's interval: errors in units of its sigma",
+    )
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
 if __name__ == "__main__":
     main()
+    from twin.sim.modulus import INTERVAL_SCALE
+
+    plot(scores(load()), INTERVAL_SCALE, DATA.with_suffix(".png"))

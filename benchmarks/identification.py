@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2040
+DRAW_SEED = 2041
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
 588 %) and the centred bracket (5.7 %, 34.5 %); its worst runs were then studied to build the grasp-matched
@@ -49,8 +49,11 @@ EXTRA_ROUNDS in twin.sim.modulus), scored on 2039 with noise seeds from 20000. T
 2039 then set the interval's calibrated scale (INTERVAL_SCALE, benchmarks/interval_calibration.py), and
 2039's 8 runs refused for too few like grasps were run again with three extra rounds: 4 became intervals,
 one of which missed the truth (an egg at 129 kPa read 67.2-120.6), at 39-66 s a run; not kept.
-Scored on 2040 with noise seeds from 22000. The next method must be scored on a seed of its own (2041 on)."""
-FIRST_NOISE_SEED = 22000
+Scored on 2040 with noise seeds from 22000: 19 numbers, median 1.7 %, max 15.0 %, coverage 89 % (17 of 19);
+14 intervals alone (11 hold the truth); 7 refused. 2040's intervals were then added to the calibration
+(the scale became 0.725), scored on 2041 with noise seeds from 24000. The next method must be scored on
+a seed of its own (2042 on)."""
+FIRST_NOISE_SEED = 24000
 PER_SHAPE = 8
 CANDIDATES = 24
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or
@@ -332,7 +335,7 @@ INTRO = (
     "procedure with the described object at candidate moduli, what the run cannot tell apart (placement "
     "within 3 mm, size within 1 mm, Poisson ratio 0.2-0.35) drawn anew for every simulation, the power "
     "law fitted to those that grasp the object as the hand did; a 95 % interval from the statistic's "
-    "noise and their scatter, its scale calibrated on the hidden runs of draws 2038-2039 (split conformal "
+    "noise and their scatter, its scale calibrated on the hidden runs of draws 2038-2040 (split conformal "
     "prediction: INTERVAL_SCALE). No table per shape or size. Hidden cases drawn from seed {seed} (which "
     "earlier seeds were looked at, and for what: DRAW_SEED in benchmarks/identification.py): the "
     "first {per_shape} per shape the hand held (block, cylinder, sphere, "

@@ -28,6 +28,7 @@ SECTIONS = (
     "stereo_pipeline",
     "stereo_run",
     "identification",
+    "interval_calibration",
     "identify_speed",
     "shape_network",
     "sweep_throughput",

@@ -10,14 +10,29 @@ from benchmarks import interval_calibration as cal
 from twin.sim.modulus import INTERVAL_SCALE, Z95
 
 
-def test_the_modulus_interval_is_scaled_by_the_conformal_quantile_of_its_calibration_runs():
-    """twin.sim.modulus.INTERVAL_SCALE is what its calibration data give (to its 3 decimals), and on those
-    runs it covers at least the nominal 95 %, as split conformal prediction guarantees in-sample."""
+def test_the_interval_scale_shipped_covers_the_recorded_hidden_runs_at_their_nominal_rate():
+    """twin.sim.modulus.INTERVAL_SCALE holds the truth in at least 95 % of the recorded hidden runs, and
+    in at least 90 % of every draw's (the issue's bar): a smaller scale, which the median error invites,
+    is refused by the draws it failed on."""
     rows = cal.load()
-    assert len(rows) >= 40 and {r["shape"] for r in rows} == {"block", "cylinder", "sphere", "egg", "bumpy"}
-    score = cal.scores(rows)
-    assert INTERVAL_SCALE == pytest.approx(cal.conformal_quantile(score) / Z95, abs=5e-4)
-    assert np.mean(score <= INTERVAL_SCALE * Z95) >= 0.95
+    assert len(rows) >= 100 and {r["shape"] for r in rows} == {"block", "cylinder", "sphere", "egg", "bumpy"}
+    assert np.mean(cal.scores(rows) <= INTERVAL_SCALE * Z95) >= 0.95
+    for draw in {r["draw"] for r in rows}:
+        these = cal.score_draw([r for r in rows if r["draw"] == draw], INTERVAL_SCALE)
+        assert these["covered"] >= 0.9 * these["runs"], (draw, these)
+    assert cal.score_draw(rows, 0.585)["covered"] < 0.95 * len(rows)  # the first calibration's, refused
+
+
+def test_prequential_scoring_calibrates_each_draw_on_the_ones_before_it():
+    """The benchmark section: the first draw has nothing before it; each later one is scored at the
+    conformal scale of those before, which for 2040 and 2041 were the scales they were run with."""
+    results = cal.run()
+    draws = results["draws"]
+    assert "prequential" not in draws[0] and all("prequential" in d for d in draws[1:])
+    for d in draws[1:]:
+        if d["run_scale"] != 1.0:
+            assert d["prequential"]["scale"] == pytest.approx(d["run_scale"], abs=5e-4)
+    assert "| 2041 |" in cal.to_markdown(results)
 
 
 def test_the_conformal_quantile_of_gaussian_scores_is_the_normal_quantile():

@@ -5,15 +5,14 @@ Each row of interval_calibration.csv is a hidden run of benchmarks/identificatio
 interval and the twin's truth. Draws 2038 to 2041, read off BENCHMARKS.md as committed in 981c082,
 94e6c6b, 89799df and with this file (values to the table's 3-4 significant figures); 2038-2039 with the
 interval before calibration (interval_scale 1), 2040 with the scale 2038-2039 gave (0.585), 2041 with
-the scale 2038-2040 gave (0.725). A run's
-score is its error in units of its own interval's sigma before calibration,
-|log(E / E_true)| / sigma; the calibrated multiplier of sigma is the ceil(0.95 (n + 1))-th smallest
-score, so that on a new run exchangeable with these the interval holds the truth with probability at
-least 95 % (split conformal prediction with a locally weighted score: Lei, G'Sell, Rinaldo, Tibshirani &
-Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). Scored on the draw after the ones it was set
-on, that multiplier covered too little twice (twin.sim.modulus.INTERVAL_SCALE says how much), so the
-method ships at scale 1; tests/benchmarks/test_interval_calibration.py checks that the scale shipped
-covers the recorded runs.
+the scale 2038-2040 gave (0.725). A run's score is its error in units of its own interval's sigma
+before calibration, |log(E / E_true)| / sigma; the calibrated multiplier of sigma is the
+ceil(0.95 (n + 1))-th smallest score, so that on a new run exchangeable with these the interval holds
+the truth with probability at least 95 % (split conformal prediction with a locally weighted score:
+Lei, G'Sell, Rinaldo, Tibshirani & Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). Scored on
+the draw after the ones it was set on, that multiplier covered too little twice
+(twin.sim.modulus.INTERVAL_SCALE says how much), so the method ships at scale 1;
+tests/benchmarks/test_interval_calibration.py checks that the scale shipped covers the recorded runs.
 
 `python benchmarks/run_all.py --only interval_calibration` scores each draw prequentially (BENCHMARKS.md)
 and draws the scores against a calibrated Gaussian's (interval_calibration.png).
@@ -26,6 +25,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from twin.sim.modulus import INTERVAL_SCALE, PRECISION, Z95
 
 DATA = Path(__file__).with_name("interval_calibration.csv")
 LEVEL = 0.95
@@ -43,8 +44,6 @@ def load(path: Path = DATA) -> list[dict]:
 def raw_sigma(row: dict) -> float:
     """The run's 1-sigma in log E before calibration: its interval's half-width in log E over Z95, undone
     of the scale it was drawn with."""
-    from twin.sim.modulus import Z95
-
     return math.log(row["ci95_high_pa"] / row["ci95_low_pa"]) / (2 * Z95 * row["interval_scale"])
 
 
@@ -63,8 +62,6 @@ def conformal_quantile(score: np.ndarray, level: float = LEVEL) -> float:
 def score_draw(rows: list[dict], scale: float) -> dict:
     """What an interval of `scale` sigma (before calibration) does on `rows`: coverage over all of them,
     and the numbers the precision rule would give (their count, median and max error, coverage)."""
-    from twin.sim.modulus import PRECISION, Z95
-
     error = np.array([math.log(r["estimate_pa"] / r["true_young_pa"]) for r in rows])
     half = Z95 * scale * np.array([raw_sigma(r) for r in rows])
     given = half <= math.log1p(PRECISION)
@@ -84,8 +81,6 @@ def run(quick: bool = False) -> dict:
     """Each recorded draw scored prequentially: at scale 1 (no calibration) and at the conformal scale of
     the draws before it (what calibrating on them would have promised the next one). `quick` is ignored:
     the data are recorded."""
-    from twin.sim.modulus import INTERVAL_SCALE, Z95
-
     rows = load()
     draws = sorted({r["draw"] for r in rows})
     table = []
@@ -101,8 +96,13 @@ def run(quick: bool = False) -> dict:
             scale = conformal_quantile(scores(before)) / Z95
             entry["prequential"] = score_draw(these, scale) | {"calibrated_on": len(before)}
         table.append(entry)
-    pooled = conformal_quantile(scores(rows)) / Z95
-    return {"draws": table, "pooled_scale": pooled, "shipped_scale": INTERVAL_SCALE, "scores": scores(rows)}
+    every = scores(rows)
+    return {
+        "draws": table,
+        "pooled_scale": conformal_quantile(every) / Z95,
+        "shipped_scale": INTERVAL_SCALE,
+        "scores": every,
+    }
 
 
 def _cells(s: dict) -> str:
@@ -147,8 +147,6 @@ def plot(results: dict, path: str) -> None:
     errors would follow), with the 95 % half-width at scale 1 and at the conformal scale of all runs."""
     from matplotlib.figure import Figure
     from scipy.stats import halfnorm
-
-    from twin.sim.modulus import Z95
 
     score = results["scores"]
     fig = Figure(figsize=(6.5, 4.5))

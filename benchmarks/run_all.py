@@ -29,6 +29,7 @@ SECTIONS = (
     "stereo_run",
     "identification",
     "interval_calibration",
+    "identifiability",
     "identify_speed",
     "shape_network",
     "sweep_throughput",

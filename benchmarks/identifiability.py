@@ -135,7 +135,7 @@ def read_floor(log_e: np.ndarray, log_s: np.ndarray, shares: np.ndarray, run: tu
 
 def floor(quick: bool, scratch: Path) -> list[dict]:
     """Per object: its truth and, per condition, the floor read from its simulations."""
-    from twin.sim.modulus import run_stiffness
+    from twin.sim.modulus import EstimateError, run_stiffness
 
     per_shape = 1 if quick else N_PER_SHAPE
     candidates = hidden.draw_cases(2 if quick else 3 * N_PER_SHAPE, scratch, FLOOR_SEED, 30000)
@@ -144,7 +144,10 @@ def floor(quick: bool, scratch: Path) -> list[dict]:
     objects = []
     for case, run_dir in zip(candidates, runs, strict=True):
         if sum(o["shape"] == case["shape"] for o in objects) < per_shape and hidden.held(run_dir):
-            s, _, _, _, shares = run_stiffness(Path(run_dir))
+            try:
+                s, _, _, _, shares = run_stiffness(Path(run_dir))
+            except EstimateError:  # held, but with no squeeze stiffness to read: no estimator's case
+                continue
             objects.append(case | {"run": (math.log(s), shares, math.log(case["young_pa"]))})
     k = 4 if quick else SIMULATIONS
     jobs = [
@@ -153,9 +156,8 @@ def floor(quick: bool, scratch: Path) -> list[dict]:
         for condition in CONDITIONS
         for foam in condition_foams(case, condition, seed=100 + i, k=k)
     ]
-    kept = (
-        scratch / f"simulations-{FLOOR_SEED}-{len(objects)}x{k}.json"
-    )  # under TWIN_BENCH_RUNS, a second call reads them back
+    # Under TWIN_BENCH_RUNS the simulations are kept, and a second call reads them back.
+    kept = scratch / f"simulations-{FLOOR_SEED}-{len(objects)}x{k}.json"
     if kept.exists():
         simulated = [None if r is None else (r[0], np.array(r[1])) for r in json.loads(kept.read_text())]
     else:

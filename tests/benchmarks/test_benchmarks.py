@@ -36,7 +36,8 @@ def test_why_the_pads_bin_contact_forces():
         assert row["binning_n"] == pytest.approx(row["load_n"], rel=0.01)
     assert rows["rigid box"]["touch_grid_n"] == pytest.approx(rows["rigid box"]["load_n"], rel=0.01)
     flex = rows["flexcomp foam"]
-    assert flex["touch_grid_n"] < 0 and flex["touch_grid_cells"] == 0  # flex contacts: wrong sign, no cell
+    # flex contacts: no cell reads the load (MuJoCo 4.0 reads 0 N; 3.17 gave the load with the wrong sign)
+    assert flex["touch_grid_n"] <= 0 and flex["touch_grid_cells"] == 0
     assert flex["tactile_nonzero"] == 0  # the native tactile sensor does not see a flexcomp
 
 

@@ -58,7 +58,9 @@ def test_taxels_match_the_twin_at_its_true_joint_angles(grasped_block):
     kinematics = HandKinematics()
     kinematics.set_angles(np.stack([truth["inner_rad"], truth["outer_rad"]], 1), float(truth["spread_rad"]))
     taxels, normals = kinematics.taxels()
-    np.testing.assert_allclose(taxels, _world_taxels_in_palm(backend), atol=1e-5)
+    # 20 um: the spread coupling (F2 follows F1) is a soft equality; under the grasp's load MuJoCo 4.0 lets
+    # it yield by up to ~17 um at F2's pads (3.17: under 10 um), which one spread angle cannot show
+    np.testing.assert_allclose(taxels, _world_taxels_in_palm(backend), atol=2e-5)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-9)
 
 

@@ -1,4 +1,5 @@
-"""Shared settings: headless MuJoCo for every test, and one OpenMP thread per test process.
+"""Shared settings: headless MuJoCo for every test, one OpenMP thread per test process, and a foam
+calibration cache of the suite's own.
 
 The suite runs as `pytest -n 2` on a 2-core machine: each worker has a core. A second torch thread in
 one worker spins against the other worker (and against notebook kernels and sweep workers, which
@@ -11,9 +12,14 @@ end and exit 0."""
 
 import os
 import signal
+import tempfile
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+# First-use foam calibrations (twin.sim.calibration) go to a cache of the suite's own, shared by its
+# workers and the processes they start, never to the user's ~/.cache.
+os.environ.setdefault("TWIN_CACHE_DIR", str(Path(tempfile.gettempdir()) / f"barrett-twin-tests-{os.getuid()}"))
 
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)  # children start with the default again

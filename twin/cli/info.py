@@ -63,6 +63,8 @@ def cmd_info(args: argparse.Namespace) -> int:
             console.print(f"  {key}: {escape(str(value))}")
     if meta.get("object"):
         console.print(f"  object: {escape(_object_summary(meta['object']))}")
+    if isinstance(meta.get("foam_calibration"), dict):
+        console.print(f"  foam calibration: {escape(_calibration_summary(meta['foam_calibration']))}")
     if meta.get("stereo_truth"):
         try:
             truth = surface_summary(meta["stereo_truth"])
@@ -97,6 +99,20 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"{d['recorded']}{never_closed}"
         )
     return 0
+
+
+def _calibration_summary(cal: dict) -> str:
+    """k on the flex's modulus and its source (twin.sim.calibration), as run.json records them."""
+    k = cal.get("modulus_scale")
+    text = f"flex modulus = E x {k:.3g}" if isinstance(k, int | float) else "flex modulus scale unknown"
+    source = {
+        "calibrated": "fitted to an FEM of the fingertip contact",
+        "law": "the shape's law through FEM calibrations",
+    }
+    text += f" ({source.get(cal.get('source'), cal.get('why', 'uncalibrated'))}"
+    if cal.get("date"):
+        text += f", {cal['date']}"
+    return text + ")"
 
 
 def _object_summary(obj: dict) -> str:

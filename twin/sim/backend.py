@@ -28,6 +28,15 @@ FINGERS = (1, 2, 3)
 STEREO_CALIBRATION_FILE = "stereo_calibration.json"
 
 
+def _calibration(foam: FoamParams | None) -> dict[str, Any] | None:
+    """The scale on the foam's flex modulus and where it came from (twin.sim.calibration)."""
+    if foam is None:
+        return None
+    from twin.sim.calibration import scale_of
+
+    return scale_of(foam).to_json()
+
+
 def _divergence_hint(foam: FoamParams | None) -> str:
     """What to change when this scene's physics diverges: the object's modulus or damping."""
     if foam is None:
@@ -252,6 +261,7 @@ class SimBackend(Backend):
             "timestep_s": float(m.opt.timestep),
             "integrator": mujoco.mjtIntegrator(m.opt.integrator).name,
             "object": self.foam.to_json() if self.foam else None,
+            "foam_calibration": _calibration(self.foam),
             "hand_config": vars(self.hand.config),
             "tactile_config": vars(self.tactile.config) if self.tactile else None,
             "stereo_config": vars(self.stereo.config) if self.stereo else None,

@@ -54,10 +54,13 @@ def foam_mesh(foam: FoamParams) -> TetMesh:
     return primitive_mesh(foam.shape, foam.size_m, foam.edge_m)
 
 
-def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
+def add_foam(root: mjcf.RootElement, foam: FoamParams, modulus_scale: float | None = None) -> None:
     """Add `foam` as a flexcomp resting on the palm, 1 mm above its surface at its placement: a
     tetrahedral mesh of its volume (faithful, and every mesh foam, whose fast preset drives that mesh
-    by 8 trilinear nodes) or a flexcomp primitive (fast), per its fidelity preset."""
+    by 8 trilinear nodes) or a flexcomp primitive (fast), per its fidelity preset.
+
+    The flex's modulus is `young_pa` times the foam's calibration scale (twin.sim.calibration: what makes
+    the flex push back on the fingertips as the material does); `modulus_scale` overrides it."""
     disc = foam.discretization
     z = PALM_SURFACE_Z_M + foam.size_m[2] / 2 + 0.001
     pos = [*foam.placement_m, z]
@@ -91,7 +94,11 @@ def add_foam(root: mjcf.RootElement, foam: FoamParams) -> None:
             mass=foam.mass_kg,
             **common,
         )
-    fc.elasticity.young = foam.young_pa
+    if modulus_scale is None:
+        from twin.sim.calibration import modulus_scale as calibrated_scale
+
+        modulus_scale = calibrated_scale(foam)
+    fc.elasticity.young = foam.young_pa * modulus_scale
     fc.elasticity.poisson = foam.poisson
     fc.elasticity.damping = foam.damping
     fc.contact.selfcollide = "none"

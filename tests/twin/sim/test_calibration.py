@@ -1,0 +1,102 @@
+"""The foam's calibration against an FEM of the fingertip contact (twin.sim.calibration, twin.sim.fem).
+
+The FEM is checked against analytic mechanics, the calibration against the FEM, and the cache against
+what it stored: a foam found in no cache is calibrated at its first composition, with its provenance, and
+read back at the second."""
+
+import json
+
+import numpy as np
+import pytest
+
+from twin.sim import calibration
+from twin.sim.example_shapes import write_closed_surface
+from twin.sim.fem import indentation_force_per_pa
+from twin.sim.foam import LIBRARY, mesh_object
+from twin.sim.scene import build_model
+from twin.sim.tetmesh import primitive_mesh
+
+
+def test_the_fem_squeezes_a_block_as_uniaxial_compression_says():
+    """A rigid plate over the whole top of a block held on the palm, nu = 0: F = E A d / h exactly (no
+    lateral strain, so the held bottom constrains nothing); the palm carries what the plate pushes."""
+    size = (0.04, 0.05, 0.06)
+    mesh = primitive_mesh("block", size, 0.01)
+    mesh = type(mesh)(mesh.points_m + np.array([0, 0, size[2] / 2]), mesh.tets)
+
+    def plate_above(points_m: np.ndarray) -> np.ndarray:
+        return size[2] + 0.001 - points_m[:, 2]  # a plate 1 mm above the top, covering every point
+
+    result = indentation_force_per_pa(mesh, 0.0, plate_above, (0.001, 0.003))
+    expected = [size[0] * size[1] * d / size[2] for d in (0.001, 0.003)]
+    assert result.force_per_pa_n == pytest.approx(expected, rel=1e-6)
+    assert result.support_per_pa_n == pytest.approx(result.force_per_pa_n, rel=1e-6)
+
+
+def test_a_stiffer_poisson_ratio_pushes_back_harder_and_force_grows_with_depth():
+    """Under the fingertips a laterally constrained foam is stiffer as nu rises (the Lamé lambda term)."""
+    foam = LIBRARY["block"]
+    tips = calibration.fingertip_geoms(foam)
+    forces = {}
+    for nu in (0.1, 0.4):
+        mesh = calibration.reference_mesh(foam.with_overrides(poisson=nu), 0.01, 0.02)
+        forces[nu] = indentation_force_per_pa(mesh, nu, calibration._gap_fn(tips), calibration.DEPTHS_M)
+    low, high = (np.array(forces[nu].force_per_pa_n) for nu in (0.1, 0.4))
+    assert np.all(np.diff(low) > 0) and np.all(high > low)
+
+
+def test_the_fingertips_lie_level_on_the_top_where_the_grasp_holds_them():
+    foam = LIBRARY["block"]
+    tips = calibration.fingertip_geoms(foam)
+    assert len(tips) == 6  # three distal links, each a box and its tip capsule
+    gap = calibration._gap_fn(tips)
+    top = 0.075 + foam.size_m[2]
+    first_touch = gap(np.array([[x, y, top] for x in (-0.025, 0.0, 0.025) for y in (-0.02, 0.0, 0.02)]))
+    assert np.nanmin(first_touch) == pytest.approx(calibration.CLEARANCE_M, abs=1e-6)
+
+
+def test_library_foams_compose_with_their_shipped_calibration_and_others_with_the_law():
+    for name, foam in LIBRARY.items():
+        for fidelity in ("fast", "faithful"):
+            scale = calibration.scale_of(foam.with_overrides(fidelity=fidelity))
+            assert scale.source == "calibrated", (name, fidelity)
+            assert max(abs(r) for r in scale.detail["residual"]) < 0.15 or foam.shape == "sphere"
+    other = calibration.scale_of(LIBRARY["block"].with_overrides(size_m=(0.05, 0.055, 0.065), poisson=0.27))
+    assert other.source == "law" and 0.3 < other.k < 3.0
+    coarse = calibration.scale_of(LIBRARY["block"].with_overrides(resolution=5))
+    assert coarse.source == "uncalibrated" and coarse.k == 1.0
+
+
+def test_the_scene_puts_the_scale_on_the_flex_modulus():
+    foam = LIBRARY["block"]
+    model = build_model(foam)
+    k = calibration.modulus_scale(foam)
+    assert model.flex_young[0] == pytest.approx(foam.young_pa * k)
+
+
+@pytest.mark.slow
+def test_a_foam_found_in_no_cache_is_calibrated_at_first_use_stored_and_read_back(tmp_path, monkeypatch):
+    monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "cache"))
+    surface = write_closed_surface(tmp_path / "egg.stl", (22.0, 20.0, 26.0), egg=0.15, rings=12, segments=20)
+    foam = mesh_object(surface, LIBRARY["block"].with_overrides(poisson=0.31))
+    lines: list[str] = []
+    first = calibration.scale_of(foam, progress=lines.append)
+    assert first.source == "calibrated" and first.k > 0
+    assert any("calibrating" in line for line in lines)  # the progress line a user sees
+    stored = sorted(calibration.cache_dir().glob("*.json"))
+    assert len(stored) == len(calibration.POISSON_NODES)
+    entries = [json.loads(p.read_text()) for p in stored]
+    for entry in entries:  # provenance: the FEM's mesh and convergence, the versions, the date
+        assert entry["fem"]["dofs"] > 1000 and entry["fem"]["convergence"]
+        assert entry["provenance"]["mujoco"] and entry["provenance"]["scikit_fem"] != "absent"
+        assert entry["fem"]["equilibrium"] == pytest.approx([1.0, 1.0, 1.0], abs=1e-3)
+    k0, k1 = sorted((e["foam"]["poisson"], e["k"]) for e in entries)
+    nu = 0.31
+    assert first.k == pytest.approx(k0[1] + (k1[1] - k0[1]) * (nu - k0[0]) / (k1[0] - k0[0]))
+    for path in stored:  # the second composition reads the cache: mark what it stores, read the mark back
+        entry = json.loads(path.read_text())
+        path.write_text(json.dumps(entry | {"k": 0.5}))
+    lines.clear()
+    assert calibration.scale_of(foam, progress=lines.append).k == pytest.approx(0.5)
+    assert lines == []
+    assert build_model(foam).flex_young[0] == pytest.approx(foam.young_pa * 0.5)

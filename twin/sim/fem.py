@@ -1,0 +1,130 @@
+"""An independent mechanics reference for the foams: small-strain linear elasticity (scikit-fem, quadratic
+tetrahedra) under rigid indenters with frictionless unilateral contact.
+
+It is the reference the flex foam is calibrated against (twin.sim.calibration), so it shares nothing with
+MuJoCo but the geometry: gmsh meshes the object's volume, scikit-fem assembles the stiffness (E = 1 Pa:
+force is proportional to E), scipy's SuperLU condenses it onto the candidate contact dofs, and a
+primal-dual active set (Hüeber & Wohlmuth's semismooth Newton form: add the penetrating nodes, drop the
+tensile ones, repeat) solves the contact at each depth. The indenters move along -z by the depth from
+first touch; the object's supported nodes are held (the palm under a grasp: friction holds it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse.linalg as spla
+
+from twin.sim.tetmesh import TetMesh
+
+MAX_ACTIVE_SET_ITERATIONS = 60
+MAX_CANDIDATE_DOFS = 4000
+"""The dense contact problem grows as the square of its candidates; more means the gap reach is too wide."""
+
+GapFn = Callable[[np.ndarray], np.ndarray]
+"""Rest gap along +z (m) from each point (n, 3) to the indenters' surface; inf where none is above."""
+
+
+@dataclass(frozen=True)
+class IndentationResult:
+    """Indenter force per pascal of Young's modulus at each depth, and what the solve cost."""
+
+    depths_m: tuple[float, ...]
+    force_per_pa_n: tuple[float, ...]
+    support_per_pa_n: tuple[float, ...]
+    """The plate's reaction (equilibrium check: equal to the indenter force)."""
+    dofs: int
+    candidates: int
+    iterations: tuple[int, ...]
+
+
+def indentation_force_per_pa(
+    mesh: TetMesh,
+    poisson: float,
+    gap_fn: GapFn,
+    depths_m: tuple[float, ...],
+    reach_m: float = 0.002,
+    held_m: float = 0.001,
+) -> IndentationResult:
+    """Press rigid frictionless indenters into `mesh` along -z by each depth from first touch, the object
+    resting on a rigid plate at its lowest point (unilateral in z; the nodes within `held_m` of the plate
+    held sideways, as the palm's friction holds them).
+
+    `gap_fn`: the indenters' rest gap above each point. Surface nodes within `reach_m` beyond the deepest
+    depth of an indenter, or within `reach_m` of the plate, are the contact candidates."""
+    from skfem import Basis, ElementTetP2, ElementVector, MeshTet, asm
+    from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+    skmesh = MeshTet(np.ascontiguousarray(mesh.points_m.T), np.ascontiguousarray(mesh.tets.T))
+    basis = Basis(skmesh, ElementVector(ElementTetP2()))
+    K = asm(linear_elasticity(*lame_parameters(1.0, poisson)), basis).tocsr()
+    xyz = basis.doflocs
+    surface = basis.get_dofs()
+    surface_z = surface.all("u^3")
+    gap_above = np.asarray(gap_fn(xyz[:, surface_z].T), dtype=float)
+    gap_above -= float(np.min(gap_above))  # depths count from first touch
+    gap_below = xyz[2, surface_z] - float(xyz[2].min())
+    top = gap_above < max(depths_m) + reach_m
+    seated = (gap_below <= 1e-9) & ~top  # resting on the plate already: a flat bottom stays down (held)
+    bottom = (gap_below < reach_m) & ~top & ~seated
+    cand = np.concatenate([surface_z[top], surface_z[bottom]])
+    if len(cand) > MAX_CANDIDATE_DOFS:
+        raise ValueError(f"{len(cand)} contact candidates (at most {MAX_CANDIDATE_DOFS}): mesh too fine")
+    side = np.concatenate([np.ones(top.sum()), -np.ones(bottom.sum())])
+    gap = np.concatenate([gap_above[top], gap_below[bottom]])
+    moving = side > 0
+    held_nodes = surface_z[(bottom | seated) & (gap_below < held_m)]  # z-dofs: x and y are 2 and 1 before
+    fixed = np.concatenate([held_nodes - 2, held_nodes - 1, surface_z[seated]])
+    rest = np.setdiff1d(np.arange(basis.N), np.concatenate([fixed, cand]))
+    lu = spla.splu(K[rest][:, rest].tocsc(), permc_spec="COLAMD")
+    K_rc = K[rest][:, cand].toarray()
+    S = K[cand][:, cand].toarray() - K_rc.T @ lu.solve(K_rc)
+    S = 0.5 * (S + S.T)
+    forces, supports, iterations = [], [], []
+    active = gap <= 0.0
+    for depth in depths_m:
+        u_c, active, iters = _solve_contact(S, side, gap - depth * moving, active)
+        u = np.zeros(basis.N)
+        u[cand] = u_c
+        u[rest] = lu.solve(-(K[rest][:, cand] @ u_c))
+        f = K @ u
+        forces.append(float(-f[cand[moving]].sum()))
+        supports.append(float(f[cand[~moving]].sum() + f[surface_z[seated]].sum()))
+        iterations.append(iters)
+    return IndentationResult(
+        depths_m=tuple(depths_m),
+        force_per_pa_n=tuple(forces),
+        support_per_pa_n=tuple(supports),
+        dofs=int(basis.N),
+        candidates=len(cand),
+        iterations=tuple(iterations),
+    )
+
+
+def _solve_contact(
+    S: np.ndarray, side: np.ndarray, limit_m: np.ndarray, active: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Candidate z-displacements under side * u <= limit (the indenters' surface above, +1; the plate
+    below, -1), each reaction S u pressing, never pulling.
+
+    An active node whose reaction pulls leaves the set, an inactive one that penetrates joins it."""
+    seen: set[bytes] = set()
+    for iters in range(1, MAX_ACTIVE_SET_ITERATIONS + 1):
+        u = np.where(active, side * limit_m, 0.0)
+        free = ~active
+        if free.any():
+            rhs = -(S[np.ix_(free, active)] @ u[active])
+            u[free] = sla.solve(S[np.ix_(free, free)], rhs, assume_a="pos")
+        pressing = side * (S @ u) < 0.0
+        new_active = np.where(active, pressing, side * u > limit_m + 1e-12)
+        if np.array_equal(new_active, active):
+            return u, active, iters
+        key = np.packbits(new_active).tobytes()
+        if key in seen:  # cycling at the contact's edge: the last set is as good as any of the cycle
+            return u, active, iters
+        seen.add(key)
+        active = new_active
+    raise RuntimeError(f"the contact set did not settle in {MAX_ACTIVE_SET_ITERATIONS} iterations")

@@ -19,7 +19,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 # First-use foam calibrations (twin.sim.calibration) go to a cache of the suite's own, shared by its
 # workers and the processes they start, never to the user's ~/.cache.
-os.environ.setdefault("TWIN_CACHE_DIR", str(Path(tempfile.gettempdir()) / f"barrett-twin-tests-{os.getuid()}"))
+_CACHE = Path(tempfile.gettempdir()) / f"barrett-twin-tests-{os.getuid()}"
+os.environ.setdefault("TWIN_CACHE_DIR", str(_CACHE))
 
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)  # children start with the default again

@@ -30,6 +30,9 @@ MAX_VERTICES = 3000
 """Most mesh vertices a foam may have: each is a 3-dof body in the sim, which must stay fast."""
 MIN_TETS = 4
 """Fewest tetrahedra a foam may have: fewer cannot bend or bulge at all."""
+TRIANGLES_PER_EDGE_AREA = 4.0
+"""A scan is decimated to this many triangles per equilateral triangle of the foam's edge length: finer than
+the tetrahedral mesh needs (gmsh re-meshes at the edge length), coarse enough to mesh in a second."""
 MM_PER_FILE_UNIT_SCALE_M = 0.001
 """Default metres per file unit: scanners and CAD exports write millimetres."""
 
@@ -61,6 +64,9 @@ class TetMesh:
 
     points_m: np.ndarray
     tets: np.ndarray
+    surface_error_m: float = 0.0
+    """How far a decimated scan's surface strays from the scan (its vertices' Hausdorff distance; 0 for a
+    surface meshed as it was given)."""
 
     @property
     def volume_m3(self) -> float:
@@ -470,14 +476,50 @@ def _file_mesh_cached(path: str, key: tuple[int, int], edge_m: float, scale: flo
     _check_edge_fits(edge_m, extent_m, where)
     a, b, c = (surface.points_m[surface.triangles[:, i]] for i in range(3))
     enclosed_m3 = abs(float(np.einsum("ij,ij->", a, np.cross(b, c)))) / 6.0
+    decimated, error_m = _decimate(surface, edge_m, where)
     _check_estimate(enclosed_m3, edge_m, where)
-    mesh = _tetrahedralise(surface, edge_m, where)
+    mesh = _tetrahedralise(decimated, edge_m, where, remesh=decimated is surface)
     _check_counts(mesh, edge_m, where)
-    return mesh
+    return TetMesh(mesh.points_m, mesh.tets, surface_error_m=error_m)
 
 
-def _tetrahedralise(surface: Surface, edge_m: float, where: str) -> TetMesh:
-    """Re-mesh the surface at edge_m with gmsh (classify, re-parametrise) and fill it with tetrahedra."""
+def _decimate(surface: Surface, edge_m: float, where: str) -> tuple[Surface, float]:
+    """A scan finer than the foam's edge length, decimated (fast-simplification's quadric decimation) to
+    about TRIANGLES_PER_EDGE_AREA triangles per equilateral triangle of edge_m over its area, and how far it
+    moved (the Hausdorff distance between the two vertex sets). A coarser surface is kept as it is."""
+    a, b, c = (surface.points_m[surface.triangles[:, i]] for i in range(3))
+    area_m2 = float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()) / 2.0
+    target = max(64, round(TRIANGLES_PER_EDGE_AREA * area_m2 / (math.sqrt(3.0) / 4.0 * edge_m**2)))
+    if len(surface.triangles) <= 2 * target:
+        return surface, 0.0
+    import fast_simplification
+    from scipy.spatial import cKDTree
+
+    points, triangles = fast_simplification.simplify(
+        np.array(surface.points_m, dtype=np.float64, order="C"),
+        np.array(surface.triangles, dtype=np.int64, order="C"),
+        target_reduction=1.0 - target / len(surface.triangles),
+    )
+    points_m, triangles = _weld(np.asarray(points, float), np.asarray(triangles, np.int64))
+    try:
+        _check_not_degenerate(points_m, triangles, where)
+        _check_closed(triangles, where)
+    except ConfigError as exc:
+        raise ConfigError(f"{exc} after decimating the scan to {len(triangles)} triangles") from None
+    # Hausdorff distance, each surface sampled: the scan by its vertices, the decimated one also inside
+    # its triangles (a 4 x 4 barycentric grid), so a vertex's distance is to the surface, not to a vertex
+    w = np.array([(i, j, 4 - i - j) for i in range(5) for j in range(5 - i)], float) / 4.0
+    samples = np.einsum("sk,tkd->tsd", w, points_m[triangles]).reshape(-1, 3)
+    error_m = max(
+        float(cKDTree(samples).query(surface.points_m)[0].max()),
+        float(cKDTree(surface.points_m).query(points_m)[0].max()),
+    )
+    return Surface(_frozen(points_m), _frozen(triangles)), error_m
+
+
+def _tetrahedralise(surface: Surface, edge_m: float, where: str, remesh: bool = True) -> TetMesh:
+    """Re-mesh the surface at edge_m with gmsh (classify, re-parametrise) and fill it with tetrahedra; a
+    surface already at the foam's density (a decimated scan: `remesh` False) is filled as it is."""
     with _foam_gmsh() as gmsh:
         model = gmsh.model
         centre = (surface.points_m.min(axis=0) + surface.points_m.max(axis=0)) / 2.0
@@ -486,13 +528,15 @@ def _tetrahedralise(surface: Surface, edge_m: float, where: str) -> TetMesh:
         model.mesh.addNodes(2, entity, node_tags, (surface.points_m - centre).ravel())
         model.mesh.addElementsByType(entity, _GMSH_TRIANGLE, [], (surface.triangles + 1).ravel())
         try:
-            model.mesh.classifySurfaces(_FEATURE_ANGLE_RAD, True, True, math.pi)
-            model.mesh.createGeometry()
+            if remesh:
+                model.mesh.classifySurfaces(_FEATURE_ANGLE_RAD, True, True, math.pi)
+                model.mesh.createGeometry()
             surfaces = [tag for _, tag in model.getEntities(2)]
             loop = model.geo.addSurfaceLoop(surfaces)
             model.geo.addVolume([loop])
             model.geo.synchronize()
             _set_uniform_size(gmsh, edge_m)
+            gmsh.option.setNumber("Mesh.OptimizeNetgen", 0 if remesh else 1)  # slivers at a decimated surface
             model.mesh.generate(3)
         except Exception as exc:
             detail = " ".join(str(exc).split()) or type(exc).__name__

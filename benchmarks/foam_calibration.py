@@ -33,25 +33,25 @@ HELD_OUT = {  # sizes and Poisson ratios on no grid point: the law is scored on 
 
 
 def design() -> list[tuple[str, FoamParams]]:
-    """(role, foam): the library foams, the 2^3 factorial per primitive (2^2 for the sphere), the held-out."""
-    cases: list[tuple[str, FoamParams]] = []
-    for fidelity in FIDELITIES:
-        for foam in LIBRARY.values():
-            cases.append(("library", foam.with_overrides(fidelity=fidelity)))
-        for shape, base in (("block", "block"), ("cylinder", "cylinder"), ("sphere", "sphere")):
-            lib = LIBRARY[base].with_overrides(fidelity=fidelity)
-            sizes = (
-                [(d, d, d) for d in FOOTPRINTS_M]
-                if shape == "sphere"
-                else [(f, f, h) for f in FOOTPRINTS_M for h in HEIGHTS_M]
-            )
-            for size in sizes:
-                for nu in POISSONS:
-                    cases.append(("grid", lib.with_overrides(size_m=size, poisson=nu, name=f"{shape}_grid")))
-            for size, nu in HELD_OUT[shape]:
-                cases.append(
-                    ("held_out", lib.with_overrides(size_m=size, poisson=nu, name=f"{shape}_held_out"))
-                )
+    """(role, foam): the library foams (both presets first: they ship), the 2^3 factorial per primitive
+    (2^2 for the sphere), then the held-out draws."""
+    cases: list[tuple[str, FoamParams]] = [
+        ("library", foam.with_overrides(fidelity=fidelity))
+        for fidelity in FIDELITIES
+        for foam in LIBRARY.values()
+    ]
+    for role in ("grid", "held_out"):
+        for fidelity in FIDELITIES:
+            for shape in ("block", "cylinder", "sphere"):
+                lib = LIBRARY[shape].with_overrides(fidelity=fidelity)
+                if role == "held_out":
+                    draws = HELD_OUT[shape]
+                elif shape == "sphere":
+                    draws = [((d, d, d), nu) for d in FOOTPRINTS_M for nu in POISSONS]
+                else:
+                    draws = [((f, f, h), nu) for f in FOOTPRINTS_M for h in HEIGHTS_M for nu in POISSONS]
+                for size, nu in draws:
+                    cases.append((role, lib.with_overrides(size_m=size, poisson=nu, name=f"{shape}_{role}")))
     return cases
 
 

@@ -5,7 +5,7 @@ hits both alike. Targets: the fast preset >= 3x real time, the default >= 1x.
 
 `python -m benchmarks.mujoco_upgrade --baseline-tree DIR --baseline-python PY` (the baseline: a checkout of
 3bb531c and a venv with its pins, e.g. `git worktree add DIR 3bb531c`). run_all.py runs it only when
-TWIN_BASELINE_TREE and TWIN_BASELINE_PYTHON are set.
+TWIN_BASELINE_TREE and TWIN_BASELINE_PYTHON name them.
 """
 
 from __future__ import annotations
@@ -50,11 +50,14 @@ def _time(python: str, tree: str, name: str, fidelity: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def run(baseline_tree: str, baseline_python: str) -> dict:
-    """Each case under this tree, then under the baseline."""
+def run(quick: bool = False, baseline_tree: str = "", baseline_python: str = "") -> dict:
+    """Each case under this tree, then under the baseline (default: $TWIN_BASELINE_TREE and
+    $TWIN_BASELINE_PYTHON)."""
+    baseline_tree = baseline_tree or os.environ["TWIN_BASELINE_TREE"]
+    baseline_python = baseline_python or os.environ["TWIN_BASELINE_PYTHON"]
     here = str(Path(__file__).resolve().parents[1])
     rows = []
-    for name, fidelity in CASES:
+    for name, fidelity in CASES[:1] if quick else CASES:
         new = _time(sys.executable, here, name, fidelity)
         old = _time(baseline_python, baseline_tree, name, fidelity)
         rows.append({"object": name, "fidelity": fidelity, "new": new, "old": old})
@@ -97,7 +100,7 @@ def main() -> None:
     parser.add_argument("--baseline-python", required=True)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    results = run(args.baseline_tree, args.baseline_python)
+    results = run(baseline_tree=args.baseline_tree, baseline_python=args.baseline_python)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     print(to_markdown(results))

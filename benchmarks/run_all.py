@@ -17,8 +17,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SECTIONS = (
+    "mujoco_upgrade",
     "realtime",
+    "foam_calibration",
     "foam_fidelity",
+    "scan_foams",
     "serial_cycle",
     "emulator_latency",
     "bridge_under_load",

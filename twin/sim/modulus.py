@@ -57,6 +57,7 @@ from twin.identify.signals import MissingStreamError, load_signals
 from twin.interface.errors import ConfigError, SimulationUnstableError
 from twin.processes import worker_pool
 from twin.recording.reader import Run
+from twin.sim.calibration import scale_of
 from twin.sim.fit import FitError, foam_of_run
 from twin.sim.foam import FoamParams
 from twin.validation import check_run_metadata
@@ -545,6 +546,10 @@ def estimate_modulus(
         return [sims[key(f)][3] for f in foams if key(f) in sims and sims[key(f)][3]]
 
     planned = 1 + sum(n for _, n in ROUNDS)  # the first simulation and the rounds'
+    # Each draw composes its foam with its own k (twin.sim.calibration: a primitive's law at its size and
+    # Poisson ratio, a mesh's calibration interpolated in it); a mesh found in no cache is calibrated here
+    # once, before the workers would each calibrate it.
+    scale_of(base)
 
     with worker_pool(workers, initializer=_init_worker, initargs=(profile, duration_s, cycles)) as pool:
 

@@ -123,6 +123,8 @@ def fit_laws(results: dict) -> dict:
                 "rms_log_k": round(rms, 4),
                 "held_out": len(held),
                 "held_out_max_error": round(max((abs(e) for e in errors), default=float("nan")), 4),
+                "max_residual": round(max(abs(r) for e in fit for r in e["residual"]), 4),
+                "mujoco": fit[0]["provenance"]["mujoco"],
                 "date": next(iter(fit))["provenance"]["date"] if fit else "",
             }
     return laws

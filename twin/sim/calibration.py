@@ -60,6 +60,8 @@ SHIPPED = Path(__file__).with_name("calibrations.json")
 POISSON_NODES = (0.2, 0.35)
 """A mesh foam is calibrated at these Poisson ratios (the range of flexible foams) and its k interpolated
 linearly between them (benchmarks/foam_calibration.py measures what that costs at the midpoint)."""
+MAX_RESIDUAL = 0.15
+"""The most a calibrated flex's force may differ from the FEM's at any depth for its k to be applied."""
 MAX_FIT_ROUNDS = 5
 FIT_TOLERANCE = 0.01
 """The fit stops once a round changes k by less than this (relative)."""
@@ -166,13 +168,17 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
         return Scale(1.0, "uncalibrated", {"why": "a discretization other than its preset's"})
     entry = lookup(foam)
     if entry is not None:
-        return Scale(float(entry["k"]), "calibrated", _summary(entry))
+        return _trusted(Scale(float(entry["k"]), "calibrated", _summary(entry)), entry["residual"])
     if foam.shape != "mesh":
         law = _laws().get(f"{foam.shape}/{foam.fidelity}")
         if law is None:
             return Scale(1.0, "uncalibrated", {"why": f"no law shipped for {foam.shape}/{foam.fidelity}"})
+        if law["mujoco"] != mujoco.__version__:  # k is MuJoCo's: a law of another version does not apply
+            why = f"the shipped calibrations are MuJoCo {law['mujoco']}'s; this is {mujoco.__version__}"
+            return Scale(1.0, "uncalibrated", {"why": why})
         k = float(np.exp(law_features(foam, law) @ np.asarray(law["coef"])))
-        return Scale(k, "law", {key: law[key] for key in ("fitted_on", "held_out_max_error", "date")})
+        detail = {key: law[key] for key in ("fitted_on", "held_out_max_error", "date")}
+        return _trusted(Scale(k, "law", detail), [law["max_residual"]])
     nodes: list[dict[str, Any]] = []
     for nu in POISSON_NODES:
         at = foam.with_overrides(poisson=nu)
@@ -183,9 +189,20 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
         nodes.append(node)
     (nu0, k0), (nu1, k1) = ((n["foam"]["poisson"], n["k"]) for n in nodes)
     k = float(k0 + (k1 - k0) * (foam.poisson - nu0) / (nu1 - nu0))
-    return Scale(
-        k, "calibrated", _summary(nodes[0]) | {"poisson_nodes": list(POISSON_NODES), "k_at_nodes": [k0, k1]}
-    )
+    detail = _summary(nodes[0]) | {"poisson_nodes": list(POISSON_NODES), "k_at_nodes": [k0, k1]}
+    return _trusted(Scale(k, "calibrated", detail), [r for n in nodes for r in n["residual"]])
+
+
+def _trusted(scale: Scale, residual: list[float]) -> Scale:
+    """`scale`, or k = 1 where one k leaves the force more than MAX_RESIDUAL off the FEM's at some depth:
+    a round top's contact widens with depth in the FEM, not on the flex's facets, and a k fitted from 2 to
+    6 mm off first touch would then misstate the grasp, which works deeper (docs/foam_calibration.md)."""
+    worst = max(abs(r) for r in residual)
+    if worst <= MAX_RESIDUAL:
+        return scale
+    why = (f"one k ({scale.k:.3g}) leaves the force {100 * worst:.0f} % off the FEM's at some depth "
+           f"(at most {100 * MAX_RESIDUAL:.0f} %): not applied")  # fmt: skip
+    return Scale(1.0, "uncalibrated", scale.detail | {"why": why, "k_fitted": scale.k})
 
 
 def _summary(entry: dict[str, Any]) -> dict[str, Any]:

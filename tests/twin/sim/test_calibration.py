@@ -5,15 +5,17 @@ what it stored: a foam found in no cache is calibrated at its first composition,
 read back at the second."""
 
 import json
+import re
 
+import mujoco
 import numpy as np
 import pytest
+from dm_control import mjcf
 
 from twin.sim import calibration
-from twin.sim.example_shapes import write_closed_surface
 from twin.sim.fem import indentation_force_per_pa
 from twin.sim.foam import LIBRARY, mesh_object
-from twin.sim.scene import build_model
+from twin.sim.scene import add_foam, build_model, scene_mjcf
 from twin.sim.tetmesh import primitive_mesh
 
 
@@ -56,28 +58,47 @@ def test_the_fingertips_lie_level_on_the_top_where_the_grasp_holds_them():
 
 
 def test_library_foams_compose_with_their_shipped_calibration_and_others_with_the_law():
+    """Flat tops take their k; a round top whose one k cannot follow the FEM within 15 % keeps k = 1 and
+    says why (the fitted k kept beside). Under another MuJoCo than the calibrations' none applies."""
+    shipped = json.loads(calibration.SHIPPED.read_text())["laws"]["block/fast"]["mujoco"]
+    if mujoco.__version__ != shipped:
+        for foam in (LIBRARY["block"], LIBRARY["block"].with_overrides(size_m=(0.05, 0.055, 0.065))):
+            scale = calibration.scale_of(foam)
+            assert (scale.source, scale.k) == ("uncalibrated", 1.0) and shipped in scale.detail["why"]
+        return
     for name, foam in LIBRARY.items():
         for fidelity in ("fast", "faithful"):
             scale = calibration.scale_of(foam.with_overrides(fidelity=fidelity))
-            assert scale.source == "calibrated", (name, fidelity)
-            assert max(abs(r) for r in scale.detail["residual"]) < 0.15 or foam.shape == "sphere"
+            if scale.source == "calibrated":
+                assert max(abs(r) for r in scale.detail["residual"]) <= calibration.MAX_RESIDUAL
+            else:
+                assert (name, scale.source, scale.k) == ("sphere", "uncalibrated", 1.0), (name, fidelity)
+                assert "not applied" in scale.detail["why"] and scale.detail["k_fitted"] != 1.0
     other = calibration.scale_of(LIBRARY["block"].with_overrides(size_m=(0.05, 0.055, 0.065), poisson=0.27))
     assert other.source == "law" and 0.3 < other.k < 3.0
     coarse = calibration.scale_of(LIBRARY["block"].with_overrides(resolution=5))
     assert coarse.source == "uncalibrated" and coarse.k == 1.0
 
 
+def _flex_young_pa(foam) -> float:
+    """The modulus the composed scene gives the foam's flexcomp (MuJoCo 4.0 keeps no flex_young)."""
+    return float(re.search(r'young="([^"]+)"', scene_mjcf(foam).to_xml_string()).group(1))
+
+
 def test_the_scene_puts_the_scale_on_the_flex_modulus():
     foam = LIBRARY["block"]
-    model = build_model(foam)
-    k = calibration.modulus_scale(foam)
-    assert model.flex_young[0] == pytest.approx(foam.young_pa * k)
+    assert _flex_young_pa(foam) == pytest.approx(foam.young_pa * calibration.modulus_scale(foam))
+    root = mjcf.RootElement()
+    add_foam(root, foam, modulus_scale=0.5)
+    assert float(re.search(r'young="([^"]+)"', root.to_xml_string()).group(1)) == pytest.approx(
+        foam.young_pa / 2
+    )
 
 
 @pytest.mark.slow
 def test_a_foam_found_in_no_cache_is_calibrated_at_first_use_stored_and_read_back(tmp_path, monkeypatch):
     monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "cache"))
-    surface = write_closed_surface(tmp_path / "egg.stl", (22.0, 20.0, 26.0), egg=0.15, rings=12, segments=20)
+    surface = _box_stl(tmp_path / "box.stl", (50.0, 55.0, 60.0))  # a flat top: one k follows the FEM
     foam = mesh_object(surface, LIBRARY["block"].with_overrides(poisson=0.31))
     lines: list[str] = []
     first = calibration.scale_of(foam, progress=lines.append)
@@ -99,4 +120,17 @@ def test_a_foam_found_in_no_cache_is_calibrated_at_first_use_stored_and_read_bac
     lines.clear()
     assert calibration.scale_of(foam, progress=lines.append).k == pytest.approx(0.5)
     assert lines == []
-    assert build_model(foam).flex_young[0] == pytest.approx(foam.young_pa * 0.5)
+    assert _flex_young_pa(foam) == pytest.approx(foam.young_pa * 0.5)
+    build_model(foam)  # and it compiles
+
+
+def _box_stl(path, size_mm):
+    """A closed box surface (12 triangles, outward), as binary STL."""
+    import meshio
+
+    x, y, z = (s / 2 for s in size_mm)
+    points = np.array([[sx * x, sy * y, sz * z] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    triangles = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    meshio.write(path, meshio.Mesh(points, [("triangle", np.array(triangles))]), binary=True)
+    return path

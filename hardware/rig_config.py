@@ -320,6 +320,10 @@ def _stereo(
         raise ConfigError(f"{where}: {exc}") from None
 
 
+EMULATED_TIMEOUT_S = 10.0
+"""The pads' and cameras' timeout in a rig file written for emulators on the same host (rig_toml)."""
+
+
 def rig_toml(
     hand_url: str,
     *,
@@ -332,8 +336,13 @@ def rig_toml(
     stereo_rate_hz: float = 30.0,
     stereo_calibration: str | None = None,
     stereo_bbox: tuple[int, int, int, int] | None = None,
+    emulated: bool = False,
 ) -> str:
-    """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes."""
+    """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes.
+
+    `emulated`: the devices are emulators sharing this host's CPU (twin-rendered frames, a twin-driven
+    pad scan): the pads' and cameras' timeouts are then EMULATED_TIMEOUT_S, since a loaded host delivers
+    their frames late, not never (a real device's default stays the hang detector it is)."""
     text = (
         "# written by `twin emulate rig`\n"
         "[hand]\n"
@@ -343,12 +352,14 @@ def rig_toml(
         "rate_hz = 30.0\n"
         "watchdog_cycles = 3\n"
     )
+    timeout = f"timeout_s = {EMULATED_TIMEOUT_S!r}  # emulated on this host: late, not lost\n"
+    timeout = timeout if emulated else ""
     if tactile_url:
-        text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n'
+        text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n{timeout}'
     if stereo:
         text += (
             f'\n[stereo]\nleft = "{stereo[0]}"\nright = "{stereo[1]}"\n'
-            f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n'
+            f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n{timeout}'
         )
         if stereo_calibration:
             text += f'calibration = "{stereo_calibration}"\n'

@@ -17,6 +17,9 @@ What a run directory promises:
   with ``error``: one line saying why, and what was verified after (the rig's stop, e.g. whether the
   hand acknowledged its idle). A "complete" run may carry ``warnings`` (a list of lines, e.g. a hand
   loop that missed its declared rate): the recording is whole, but something about it needs saying.
+- time: every stream's ``t_s`` is seconds on the run's one clock (sim time; on hardware, wall time
+  since the rig started), the clock every device of the backend reads; each stream's description
+  says which instant of a sample it stamps (e.g. a reading when it was taken, a command when sent).
 - integrity: a closed run's run.json holds each stream file's size and SHA-256 as written
   (``integrity``); the reader checks them and refuses a stream file changed since (RunFormatError).
   run.json itself is plain text and carries no digest.

@@ -38,6 +38,9 @@ DEFAULT_REALTIME = RealTimeConfig(
 
 RECOVERABLE = (HandTimeoutError, FeedbackFormatError, ReplyFormatError)
 """A reply that was missing, late, short or garbled: the cycle is retried after re-entering LOOP."""
+SET_POINT_DRIFT_COUNTS = 50
+"""How far a motor may stop short of an opening target before the host's set point model follows it
+(BH8SerialHand._follow_an_opening_motor): well above the encoders' jitter of a few counts."""
 IDLE_TRIES = 3
 """Bare CRs idle() sends, `timeout_s` apart, to find the prompt before T: a hand silent for a moment
 (noise, a late reply in flight) is still stopped."""
@@ -192,6 +195,8 @@ class BH8SerialHand(Hand):
         if self._setpoint is None:
             self._setpoint = position.astype(float)
             self._target = position.astype(float)
+        else:
+            self._follow_an_opening_motor(position)
         return HandReading(
             t_s=t_s,
             position_counts=position,
@@ -220,6 +225,21 @@ class BH8SerialHand(Hand):
             return HandCommand(target, velocity)
         self._commanded_since_read = True
         return HandCommand(target, velocity)
+
+    def _follow_an_opening_motor(self, position: np.ndarray) -> None:
+        """Move the set point to a motor that stopped short of an opening target.
+
+        The set point is the host's model of where the firmware servos each motor, integrated from the
+        velocities sent on the host's clock; the firmware integrates them from when each block arrives.
+        A block the host (or the line) delays leaves a velocity in force a little longer or shorter
+        than the model has it: the model then reaches its target with the motor short of it, and a
+        velocity loop stops there (a loaded host left fingers 100-800 counts short of open). Opening
+        presses on nothing the hand holds, so where the model has settled on a target below the motor
+        by more than SET_POINT_DRIFT_COUNTS, the model restarts from the motor and drives it on. A motor
+        short of a closing target is left alone: that is a finger held by the object, building force."""
+        settled = np.abs(self._setpoint - self._target) < 0.5
+        short = position - self._target > SET_POINT_DRIFT_COUNTS
+        self._setpoint = np.where(settled & short, position.astype(float), self._setpoint)
 
     def _servo(self, t_s: float) -> dict[str, list[int]]:
         """LCV/LCPG per motor: the velocity that closes the set-point error within one period."""

@@ -31,6 +31,7 @@ from twin.interface.devices import (
     StereoFrame,
     TactileReading,
 )
+from twin.processes import interrupts_deferred
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
@@ -445,7 +446,8 @@ class Rig:
         if not hand.is_connected:
             return report
         try:
-            hand.idle()
+            with interrupts_deferred():  # a second Ctrl-C waits until the hand has its idle
+                hand.idle()
         except Exception as idle_exc:
             report.idle, report.idle_error = "failed", _describe(idle_exc)
         else:

@@ -269,6 +269,13 @@ def test_a_name_too_long_is_one_line(tmp_path: Path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
+def test_emulate_rig_refuses_a_port_whose_neighbours_do_not_exist(tmp_path: Path):
+    for port in ("tcp:65534", "tcp:65535"):  # the pads take PORT+1, the cameras PORT+2
+        line = one_line(twin("emulate", "rig", "--port", port, "--duration", "1", cwd=tmp_path))
+        assert "at most tcp:65533" in line
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_parquet_export_of_a_run_with_no_command_samples(tmp_path: Path):
     write_run(tmp_path / "run", samples=0)
     result = twin("export", "run", "--format", "parquet", "--out", "ds", cwd=tmp_path)

@@ -39,6 +39,23 @@ def _start_emulator(transport: str) -> tuple[subprocess.Popen, str]:
     raise RuntimeError("the emulator did not start")
 
 
+STOP_TIMEOUT_S = 60.0
+"""How long the emulator gets to close after SIGTERM (it opens the twin's fingers in the twin's own
+motion time, which a busy machine slows) before it is killed."""
+
+
+def stop(proc: subprocess.Popen, timeout_s: float | None = None) -> None:
+    """End the emulator this benchmark started: SIGTERM, its output drained (a full pipe would keep it
+    from exiting), then SIGKILL after `timeout_s`. Never raises: the rows measured are kept whatever
+    the emulator does on its way out (a busy machine made `wait(timeout=10)` throw the table away)."""
+    proc.terminate()
+    try:
+        proc.communicate(timeout=STOP_TIMEOUT_S if timeout_s is None else timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+
+
 def _cycle(bh: BH262, config: RealTimeConfig, control: dict) -> bool:
     """One C cycle; a reply lost to a busy machine (later than the driver's allowance) is recovered
     as the hand driver would, and counted, instead of ending the benchmark. True when it was lost."""
@@ -91,8 +108,7 @@ def run(quick: bool = False) -> dict:
                     }
                 )
         finally:
-            proc.terminate()
-            proc.wait(timeout=10)
+            stop(proc)
     return {"baud": BAUD, "cycles": cycles, "rows": rows}
 
 

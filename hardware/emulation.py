@@ -111,6 +111,8 @@ class Link:
     def __init__(self, fd: int | None = None, sock: socket.socket | None = None) -> None:
         self.fd, self.sock = fd, sock
         self._closed = threading.Lock()
+        self.last_received = time.monotonic()
+        """When the host last sent a byte (monotonic s): what an idle timeout measures."""
 
     def fileno(self) -> int:
         """For select()."""
@@ -119,7 +121,10 @@ class Link:
     def read(self, size: int = 4096) -> bytes | None:
         """Up to `size` bytes waiting; b"" when the peer is gone; None when nothing was there after all."""
         try:
-            return self.sock.recv(size) if self.sock is not None else os.read(self.fd, size)
+            data = self.sock.recv(size) if self.sock is not None else os.read(self.fd, size)
+            if data:
+                self.last_received = time.monotonic()
+            return data
         except (BlockingIOError, InterruptedError):
             return None
         except OSError:
@@ -154,6 +159,13 @@ class Link:
                 if not select.select([], [self.fd], [], left)[1]:
                     return False
         return True
+
+    def hang_up(self) -> None:
+        """End a socket's connection from another thread: the session reads the end of the stream and
+        closes the link itself (the descriptor stays valid until it does)."""
+        if self.sock is not None:
+            with contextlib.suppress(OSError):
+                self.sock.shutdown(socket.SHUT_RDWR)
 
     def close(self) -> None:
         """Close once (a descriptor closed twice may be someone else's by then)."""
@@ -206,7 +218,12 @@ def close_fd(fd: int) -> None:
 BUSY_REPLY = b"\n\rbusy: another client is connected to this emulator\n\r"
 """What a second TCP client reads before its connection is closed (one client at a time, as a serial line)."""
 BUSY_GRACE_S = 1.0
-"""How long a newcomer waits for the present client's session to end (it may be leaving) before refusal."""
+"""How long a newcomer waits for the present client's session to end (it may be leaving) before refusal.
+One newcomer waits at a time, on a thread of its own: the others are refused at once, and the accept
+loop never waits (a flood of connections delays nobody)."""
+IDLE_TIMEOUT_S = 60.0
+"""A TCP client of a host-driven emulator (the hand) that sends nothing this long is disconnected, so
+a silent connection cannot hold the one session for ever."""
 
 
 class PortServer:
@@ -223,6 +240,9 @@ class PortServer:
     """
 
     thread_name = "emulator"
+    idle_timeout_s: float | None = None
+    """Disconnect a TCP client that has sent nothing this long (None: never; a device that streams on
+    its own, as the pads, has clients that never send)."""
 
     def __init__(self, on_event: Callable[[str], None] | None = None) -> None:
         self.on_event = on_event or (lambda _msg: None)
@@ -311,44 +331,82 @@ class PortServer:
         server.settimeout(0.1)
         self._closers.append(server.close)
 
-        def serve_client(conn: socket.socket) -> None:
-            link = Link(sock=conn)
+        state: dict[str, object] = {"session": None, "link": None, "waiting": False}
+        lock = threading.Lock()
+
+        def serve_client(conn: socket.socket, link: Link) -> None:
             outcome = self._guarded_session(link)
             link.close()
             self.on_event(f"client left: {outcome}")
             if outcome in ("vanished", "failed"):
                 server.close()
 
+        def begin(conn: socket.socket, peer: str) -> None:
+            """Serve `conn` now (under `lock`, with no session alive)."""
+            link = Link(sock=conn)
+            self.on_event(f"client {peer} connected")
+            state["link"] = link
+            state["session"] = self._start(lambda: serve_client(conn, link), f"{self.thread_name}-client")
+
+        def wait_then_serve(conn: socket.socket, peer: str, session: threading.Thread) -> None:
+            """The one newcomer allowed to wait: served if the present session ends within the grace."""
+            session.join(timeout=BUSY_GRACE_S)
+            with lock:
+                state["waiting"] = False
+                current = state["session"]
+                if (current is None or not current.is_alive()) and not self.stop_event.is_set():
+                    begin(conn, peer)
+                    return
+            self._refuse(conn, peer)
+
         def run() -> None:
-            session: threading.Thread | None = None
             while not self.stop_event.is_set():
+                self._disconnect_if_idle(state.get("link"), state.get("session"))
                 try:
-                    conn, peer = server.accept()
+                    conn, addr = server.accept()
                 except TimeoutError:
                     continue
                 except OSError:
                     return
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                if session is not None:
-                    session.join(timeout=BUSY_GRACE_S)
-                if session is not None and session.is_alive():
-                    self._refuse(conn, f"{peer[0]}:{peer[1]}")
-                    continue
-                self.on_event(f"client {peer[0]}:{peer[1]} connected")
-                session = self._start(lambda conn=conn: serve_client(conn), f"{self.thread_name}-client")
+                peer = f"{addr[0]}:{addr[1]}"
+                with lock:
+                    session = state["session"]
+                    if session is None or not session.is_alive():
+                        begin(conn, peer)
+                        continue
+                    if state["waiting"]:  # one newcomer already waits: refuse this one now
+                        refuse = True
+                    else:
+                        refuse, state["waiting"] = False, True
+                if refuse:
+                    self._refuse(conn, peer)
+                else:
+                    self._start(lambda c=conn, p=peer, s=session: wait_then_serve(c, p, s), "emulator-wait")
 
         self._start(run, f"{self.thread_name}-accept")
         self.address = f"socket://{host}:{server.getsockname()[1]}"
         return self.address
 
     def _refuse(self, conn: socket.socket, peer: str) -> None:
-        """A second client: one line saying why, then closed."""
+        """A second client: one line saying why, then closed (never waiting on it: a newcomer that
+        does not read cannot hold the accept loop)."""
         self.on_event(f"client {peer} refused: another client is connected")
         with contextlib.suppress(OSError):
-            conn.settimeout(0.5)
-            conn.sendall(BUSY_REPLY)
+            conn.setblocking(False)
+            conn.send(BUSY_REPLY)
             conn.shutdown(socket.SHUT_RDWR)
         conn.close()
+
+    def _disconnect_if_idle(self, link: object, session: object) -> None:
+        """Close a TCP client's link once it has sent nothing for idle_timeout_s (its session then ends
+        as the peer leaving would)."""
+        timeout = self.idle_timeout_s
+        if timeout is None or not isinstance(link, Link) or not isinstance(session, threading.Thread):
+            return
+        if session.is_alive() and time.monotonic() - link.last_received > timeout:
+            self.on_event(f"client idle for {timeout:g} s: disconnected")
+            link.hang_up()
 
     def serve_socketpair(self) -> socket.socket:
         """An in-process connection (the emulators' URLs): returns the host's end."""

@@ -47,6 +47,7 @@ from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
 from twin.interface.tactile_spec import TactileConfig
 from twin.safety import SafetyLimits
+from twin.tactile.calibration import load_points, load_table
 from twin.validation import check_number
 from twin.vision.calibration import StereoCalibration, StereoCalibrationError
 
@@ -214,6 +215,8 @@ def load_rig(path: Path | str) -> RigConfig:
         raise ConfigError(f"--rig {path}: cannot read ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"--rig {path}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise ConfigError(f"--rig {path}: not valid TOML (nested too deeply)") from None
     unknown = set(data) - {"hand", "tactile", "stereo", "limits", "calibration"}
     if unknown:
         raise ConfigError(
@@ -232,10 +235,9 @@ def load_rig(path: Path | str) -> RigConfig:
             f"{path}: [calibration] unknown file name(s) {', '.join(sorted(unknown))}; known: "
             + ", ".join(CALIBRATION_FILES)
         )
-    files = {k: (path.parent / v) for k, v in calibration.items()}
+    files = {k: _named_file(path, f"[calibration].{k}", v) for k, v in calibration.items()}
     for key, file in files.items():
-        if not file.is_file():
-            raise ConfigError(f"{path}: [calibration].{key}: no such file {file}")
+        _check_tactile_file(key, file)
     stereo, stereo_bbox = _stereo(path, data["stereo"], files) if "stereo" in data else (None, None)
     for key in ("finger_counts", "spread_counts"):
         if key in limits:
@@ -284,6 +286,34 @@ def load_rig(path: Path | str) -> RigConfig:
     )
 
 
+def _named_file(rig: Path, key: str, name: str, *, exists: bool = True) -> Path:
+    """A file a rig.toml names: relative to the rig file, and inside its directory once every link is
+    followed (a rig file copies its calibration into every run: it may not reach for anything else).
+    `exists`: refuse a name that is not a regular file here (else its loader says what is wrong)."""
+    if not name or "\0" in name:
+        raise ConfigError(f"{rig}: {key}: {name!r} is not a file name")
+    base = rig.parent.resolve()
+    file = rig.parent / name
+    try:
+        inside = Path(name).is_absolute() is False and file.resolve().is_relative_to(base)
+    except (OSError, RuntimeError, ValueError):  # a symlink loop, a name the OS refuses
+        inside = False
+    if not inside:
+        raise ConfigError(
+            f"{rig}: {key}: {name!r} is outside the rig file's directory {base}; "
+            "put the file beside rig.toml (or below it) and name it relative to it"
+        )
+    if exists and not file.is_file():
+        raise ConfigError(f"{rig}: {key}: no such file {file}")
+    return file
+
+
+def _check_tactile_file(key: str, file: Path) -> None:
+    """Parse a tactile calibration file now (whether or not [tactile] is configured): a file that is
+    not one is refused in one line before anything runs, and never copied into a run."""
+    (load_table if key == "tactile_table" else load_points)(file)
+
+
 def _stereo(
     path: Path, table: Any, files: dict[str, Path]
 ) -> tuple[StereoCaptureConfig, tuple[int, int, int, int] | None]:
@@ -308,7 +338,7 @@ def _stereo(
         bbox = tuple(bbox)
     calibration = stereo.pop("calibration", None)
     if calibration is not None:
-        file = path.parent / calibration
+        file = _named_file(path, "[stereo].calibration", calibration, exists=False)
         try:
             StereoCalibration.load(file)  # one line naming the file and what is wrong with it
         except StereoCalibrationError as exc:
@@ -318,6 +348,10 @@ def _stereo(
         return StereoCaptureConfig(**stereo), bbox
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+EMULATED_TIMEOUT_S = 10.0
+"""The pads' and cameras' timeout in a rig file written for emulators on the same host (rig_toml)."""
 
 
 def rig_toml(
@@ -332,8 +366,13 @@ def rig_toml(
     stereo_rate_hz: float = 30.0,
     stereo_calibration: str | None = None,
     stereo_bbox: tuple[int, int, int, int] | None = None,
+    emulated: bool = False,
 ) -> str:
-    """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes."""
+    """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes.
+
+    `emulated`: the devices are emulators sharing this host's CPU (twin-rendered frames, a twin-driven
+    pad scan): the pads' and cameras' timeouts are then EMULATED_TIMEOUT_S, since a loaded host delivers
+    their frames late, not never (a real device's default stays the hang detector it is)."""
     text = (
         "# written by `twin emulate rig`\n"
         "[hand]\n"
@@ -343,12 +382,14 @@ def rig_toml(
         "rate_hz = 30.0\n"
         "watchdog_cycles = 3\n"
     )
+    timeout = f"timeout_s = {EMULATED_TIMEOUT_S!r}  # emulated on this host: late, not lost\n"
+    timeout = timeout if emulated else ""
     if tactile_url:
-        text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n'
+        text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n{timeout}'
     if stereo:
         text += (
             f'\n[stereo]\nleft = "{stereo[0]}"\nright = "{stereo[1]}"\n'
-            f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n'
+            f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n{timeout}'
         )
         if stereo_calibration:
             text += f'calibration = "{stereo_calibration}"\n'

@@ -109,6 +109,7 @@ class RigEmulator:
             stereo_rate_hz=self.cameras.rate_hz if self.cameras is not None else 30.0,
             stereo_calibration=stereo_calibration,
             stereo_bbox=stereo_bbox,
+            emulated=True,
         )
         path.write_text(text)
         return path

@@ -141,7 +141,9 @@ def assert_refused(argv: list[str], root: Path, test: str) -> str:
 
 NOT_NUMBERS = st.sampled_from(
     ["nan", "NaN", "-nan", "inf", "-inf", "+inf", "Infinity", "1e309", "-1e309", "", " ", "x", "1,5",
-     "0x10", "1e", "--", "½", "١e999"]
+     "0x10", "1e", "--", "½", "١e999",
+     # numbers Python's int() and float() take that are not plain ASCII decimals (issue 37)
+     "0_5", "1_0", "٥", "۵", "５", "５.０", "𝟓", " 5", "5 ", "\u00a05", "5\t"]
 )  # fmt: skip
 
 

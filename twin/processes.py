@@ -45,6 +45,22 @@ def sigterm_as_interrupt() -> bool:
     return True
 
 
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """SIGINT and SIGTERM held back (blocked) for the block, delivered when it ends: what must not be
+    cut in half by a second Ctrl-C (a run's final status, the hand's idle) finishes first. Only the
+    main thread's mask changes (Python runs its handlers there); elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def die_with_parent() -> None:
     """Ask the kernel to SIGKILL this process when its parent dies (Linux; a no-op elsewhere)."""
     if not sys.platform.startswith("linux"):

@@ -31,6 +31,7 @@ from twin.interface.devices import (
     StereoFrame,
     TactileReading,
 )
+from twin.processes import interrupts_deferred
 from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
@@ -61,7 +62,10 @@ def hand_stream_spec(rate_hz: float, velocity_unit: str) -> StreamSpec:
     return StreamSpec(
         name="hand",
         rate_hz=rate_hz,
-        description="BH8 feedback, motors F1, F2, F3, S (raw) and eqs. 1-3 conversion",
+        description=(
+            "BH8 feedback, motors F1, F2, F3, S (raw) and eqs. 1-3 conversion; "
+            "t_s: when the reading was taken (on hardware: when its feedback cycle was sent)"
+        ),
         fields={
             "position_counts": FieldSpec(unit="counts", shape=(4,), dtype="int32", kind="raw"),
             "velocity_counts": FieldSpec(unit=velocity_unit, shape=(4,), dtype="int32", kind="raw"),
@@ -79,7 +83,10 @@ def command_stream_spec(rate_hz: float) -> StreamSpec:
     return StreamSpec(
         name="command",
         rate_hz=rate_hz,
-        description="set points sent to the hand and the procedure phase",
+        description=(
+            "set points sent to the hand and the procedure phase; "
+            "t_s: when the set point was sent, in answer to the hand reading just before it"
+        ),
         fields={
             "position_counts": FieldSpec(unit="counts", shape=(4,), kind="command"),
             "max_velocity_counts_s": FieldSpec(unit="counts/s", kind="command"),
@@ -113,7 +120,10 @@ def tactile_stream_spec(rate_hz: float) -> StreamSpec:
     return StreamSpec(
         name="tactile",
         rate_hz=rate_hz,
-        description=f"PPS pads, 162 taxels in layout id order (twin.tactile.layout); pads: {pads}",
+        description=(
+            f"PPS pads, 162 taxels in layout id order (twin.tactile.layout); pads: {pads}; "
+            "t_s: when the scan was taken (on hardware: when its frame arrived)"
+        ),
         fields={
             "counts": FieldSpec(unit="counts", shape=(N_TAXELS,), dtype="int32", kind="raw"),
             "sequence": FieldSpec(unit="1", dtype="int64", kind="status", description="device frame number"),
@@ -366,7 +376,13 @@ class Rig:
                         hand_wall_s = [hand_wall_s[0] if hand_wall_s else now_s, now_s]
                     reading = hand.read()
                     truth = self.backend.ground_truth()
-                    self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
+                    if self.backend.is_simulated:
+                        self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
+                    else:  # the latency has happened on the wire: the controller answers this reading
+                        # now, before any later sample a late loop still owes (one clock, no backlog)
+                        self._deliver(reading, truth, controller)
+                        if progress is not None:
+                            progress(event_t_s)
                 elif kind == "deliver_hand":
                     reading, truth = payload
                     self._deliver(reading, truth, controller)
@@ -430,7 +446,8 @@ class Rig:
         if not hand.is_connected:
             return report
         try:
-            hand.idle()
+            with interrupts_deferred():  # a second Ctrl-C waits until the hand has its idle
+                hand.idle()
         except Exception as idle_exc:
             report.idle, report.idle_error = "failed", _describe(idle_exc)
         else:

@@ -10,6 +10,7 @@ verified.
 
 from __future__ import annotations
 
+import contextlib
 import platform
 import sys
 import tempfile
@@ -22,6 +23,7 @@ from typing import Any
 from twin import __version__, units
 from twin.interface.backend import Backend
 from twin.interface.errors import ConfigError, DeviceError, RunDirectoryLostError, TwinError
+from twin.processes import interrupts_deferred
 from twin.recording import RunWriter
 from twin.rig import Rig, RigResult, summarize_surface_scores
 from twin.safety import SafetyLayer
@@ -124,6 +126,9 @@ def run_experiment(
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())
     backend.connect()
+    writer: RunWriter | None = None
+    rig: Rig | None = None
+    result: RigResult | None = None
     try:
         metadata = {
             "software": {"barrett_twin": __version__, "python": platform.python_version()},
@@ -136,8 +141,6 @@ def run_experiment(
         }
         rrd_path = run_dir / RRD_NAME
         writer = RunWriter(run_dir, metadata)
-        rig = None
-        result: RigResult | None = None
         try:
             files = backend.write_calibration(run_dir / "calibration")
             writer.update_metadata(
@@ -173,12 +176,19 @@ def run_experiment(
             for line in result.warnings:
                 writer.warn(line)
         except BaseException as exc:  # what went wrong is kept even when the run failed
-            error = _close_failed(writer, exc, rig, backend, result)
+            with interrupts_deferred():  # a second Ctrl-C waits until the status is on disk
+                error = _close_failed(writer, exc, rig, backend, result)
             if error is exc:
                 raise
             raise error from exc
-        writer.close("complete", metadata=_diagnostics(backend, rig, result))
+        with interrupts_deferred():
+            writer.close("complete", metadata=_diagnostics(backend, rig, result))
     except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
+        if isinstance(exc, KeyboardInterrupt):
+            exc.run_dir = run_dir  # the CLI says what the run directory now holds
+        if writer is not None and not writer.closed:  # interrupted before its status was written
+            with interrupts_deferred(), contextlib.suppress(Exception):
+                _close_failed(writer, exc, rig, backend, result)
         try:
             backend.disconnect()
         except Exception as cleanup:

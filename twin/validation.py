@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,8 @@ from twin.interface.errors import ConfigError
 
 DAY_S = 86_400.0
 """The longest run or trajectory a flag accepts (s)."""
+MIN_DURATION_S = 1e-3
+"""The shortest run a flag accepts (s): 5e-324 is a number, not a run length."""
 SEED_LIMIT = 2**32
 """Seeds are numpy seeds: 0 <= seed < 2**32."""
 
@@ -77,6 +80,19 @@ def check_number(value: object, name: str, **bounds: object) -> int | float:
         raise ConfigError(f"{name} {exc}, got {value!r}") from None
 
 
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def parse_decimal(text: str, kind: type = float) -> int | float:
+    """A plain ASCII decimal as `kind`: digits, one point, an exponent (floats), a sign; ValueError for
+    anything else Python would take (`0_5`, Arabic-Indic or full-width digits, 'nan', 'inf', spaces)."""
+    pattern = _INTEGER if kind is int else _DECIMAL
+    if not isinstance(text, str) or not pattern.fullmatch(text):
+        raise ValueError(f"not a plain decimal number: {text!r:.40}")
+    return int(text, 10) if kind is int else float(text)
+
+
 class NumberArg:
     """An argparse `type=`: parses the text as the range's kind and checks it (argparse names the flag)."""
 
@@ -86,7 +102,7 @@ class NumberArg:
 
     def __call__(self, text: str) -> int | float:
         try:
-            value = int(text, 10) if self.range.kind is int else float(text)
+            value = parse_decimal(text, self.range.kind)
         except (TypeError, ValueError):
             raise argparse.ArgumentTypeError(f"must be {self.range.describe()}, got {_shown(text)}") from None
         try:
@@ -117,7 +133,9 @@ def seed() -> NumberArg:
 
 
 def duration(min_s: float = 0.0) -> NumberArg:
-    """argparse type: a run length > min_s and at most a day (s)."""
+    """argparse type: a run length > min_s (and at least MIN_DURATION_S) and at most a day (s)."""
+    if min_s < MIN_DURATION_S:
+        return finite(MIN_DURATION_S, DAY_S)
     return finite(min_s, DAY_S, min_inclusive=False)
 
 
@@ -137,6 +155,11 @@ def _plain(text: str) -> Path:
         raise argparse.ArgumentTypeError("empty path")
     if "\0" in text:
         raise argparse.ArgumentTypeError(f"{text!r}: a path cannot hold a NUL byte")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:  # undecodable bytes (surrogate escapes): Rerun and JSON cannot name it
+        shown = os.fsencode(text).decode("utf-8", "backslashreplace")
+        raise argparse.ArgumentTypeError(f"{shown}: not a UTF-8 name; rename it") from None
     return Path(text)
 
 

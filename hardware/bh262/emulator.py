@@ -20,6 +20,7 @@ import numpy as np
 from hardware.bh262.firmware import QUIET_AFTER_S, QUIET_BEFORE_S, Firmware, RealTimeTwin
 from hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
 from hardware.emulation import (
+    IDLE_TIMEOUT_S,
     NO_ARG,
     Fault,
     FaultArg,
@@ -409,6 +410,7 @@ class HandEmulator(PortServer):
     """A twin-backed BH8-262 reachable over a pty, TCP or an in-process socket pair."""
 
     thread_name = "bh8-serial"
+    idle_timeout_s = IDLE_TIMEOUT_S  # the host drives the BH8: a client that says nothing holds it idle
 
     def __init__(
         self,

@@ -145,9 +145,10 @@ class RealTimeTwin:
         return time.monotonic() - self._t0
 
     def submit(self, action: Callable[[], None], at_s: float = 0.0) -> None:
-        """Have `action` run under the lock, on the physics thread, once monotonic time reaches `at_s`
-        (before the next physics chunk): the serial thread never waits for the physics to hand a
-        command over. With no physics thread running it runs now."""
+        """Have `action` run under the lock, on the physics thread, once sim time reaches monotonic
+        `at_s` on the twin's clock (before the physics step that passes it): the serial thread never
+        waits for the physics to hand a command over, and a twin running behind wall time applies the
+        command at the instant it arrived, only later. With no physics thread running it runs now."""
         if not self._thread.is_alive():
             with self.lock:
                 action()
@@ -231,8 +232,15 @@ class RealTimeTwin:
                 continue
             target = self.now()
             with self.lock:  # short holds so that the serial thread is never kept waiting long
-                self._run_pending(time.monotonic())
-                world.advance_to(min(target, world.time_s + self._chunk_s))
+                # A command takes effect at the sim time of its arrival, not at whatever sim time a
+                # lagging twin has reached when it arrives: a twin starved of CPU integrates every
+                # velocity over the time it was in force on the wire, as the firmware does, and only
+                # reports it later (the host's own set point model then agrees with the fingers).
+                self._run_pending(self._t0 + world.time_s + 0.5 * world.timestep_s)
+                step_to = min(target, world.time_s + self._chunk_s)
+                if self._pending:
+                    step_to = min(step_to, max(self._pending[0][0] - self._t0, world.time_s))
+                world.advance_to(step_to)
                 behind = target - world.time_s
                 if self.backend.hand.is_connected:
                     self._publish()

@@ -38,6 +38,13 @@ DEFAULT_REALTIME = RealTimeConfig(
 
 RECOVERABLE = (HandTimeoutError, FeedbackFormatError, ReplyFormatError)
 """A reply that was missing, late, short or garbled: the cycle is retried after re-entering LOOP."""
+SET_POINT_DRIFT_COUNTS = 50
+"""How far a motor may stop short of fully open before the host's set point model follows it
+(BH8SerialHand._follow_an_opening_motor): well above the encoders' jitter of a few counts."""
+STOPPED_COUNTS_S = 100.0
+"""A motor reporting less than this speed (LFV) has stopped: a finger still on its way is only late."""
+STOPPED_READS = 3
+"""Readings in a row (0.1 s at 30 Hz) a motor must sit stopped short before the model follows it."""
 IDLE_TRIES = 3
 """Bare CRs idle() sends, `timeout_s` apart, to find the prompt before T: a hand silent for a moment
 (noise, a late reply in flight) is still stopped."""
@@ -97,6 +104,8 @@ class BH8SerialHand(Hand):
         self._target = np.zeros(4)
         self._max_velocity = config.max_velocity_counts_s
         self._setpoint: np.ndarray | None = None
+        self._stopped_short = np.zeros(4, dtype=int)
+        """Readings in a row each motor has sat stopped short of an opening target."""
         self._velocity = np.zeros(4)
         self._t_sent: float | None = None
         self._commanded_since_read = True
@@ -144,6 +153,7 @@ class BH8SerialHand(Hand):
             self.bh.close()
             raise
         self._setpoint = None
+        self._stopped_short[:] = 0
         self._commanded_since_read = True
         self._resync_needed = False
         self._idled = self._idle_failed = False
@@ -192,10 +202,12 @@ class BH8SerialHand(Hand):
         if self._setpoint is None:
             self._setpoint = position.astype(float)
             self._target = position.astype(float)
+        velocity = np.asarray(fields["LFV"], dtype=np.int32) * self.lfvc
+        self._follow_an_opening_motor(position, velocity / self.velocity_unit_s)
         return HandReading(
             t_s=t_s,
             position_counts=position,
-            velocity_counts=np.asarray(fields["LFV"], dtype=np.int32) * self.lfvc,
+            velocity_counts=velocity,
             strain_counts=np.asarray(fields["LFS"][:3], dtype=np.int32),
         )
 
@@ -220,6 +232,28 @@ class BH8SerialHand(Hand):
             return HandCommand(target, velocity)
         self._commanded_since_read = True
         return HandCommand(target, velocity)
+
+    def _follow_an_opening_motor(self, position: np.ndarray, velocity_counts_s: np.ndarray) -> None:
+        """Move the set point to a motor that stopped short of an opening target.
+
+        The set point is the host's model of where the firmware servos each motor, integrated from the
+        velocities sent on the host's clock; the firmware integrates them from when each block arrives.
+        A block the host (or the line) delays leaves a velocity in force a little longer or shorter
+        than the model has it: the model then reaches its target with the motor short of it, and a
+        velocity loop stops there (a loaded host left fingers 100-800 counts short of open). Where the
+        model has settled on the fully open target (0 counts, where the firmware stops a motor of
+        itself, so driving on cannot overshoot) with the motor more than SET_POINT_DRIFT_COUNTS short
+        of it and stopped for STOPPED_READS readings, the model restarts from the motor and drives it
+        on. Elsewhere the model is left as it is: a motor still moving is only late, one short of a
+        closing target is a finger held by the object building force, and restarting the model short
+        of any other target would send the motor past it by as much."""
+        settled = (np.abs(self._setpoint - self._target) < 0.5) & (self._target <= 0.5)
+        short = position - self._target > SET_POINT_DRIFT_COUNTS
+        stopped = np.abs(velocity_counts_s) < STOPPED_COUNTS_S
+        self._stopped_short = np.where(settled & short & stopped, self._stopped_short + 1, 0)
+        follow = self._stopped_short >= STOPPED_READS
+        self._setpoint = np.where(follow, position.astype(float), self._setpoint)
+        self._stopped_short[follow] = 0
 
     def _servo(self, t_s: float) -> dict[str, list[int]]:
         """LCV/LCPG per motor: the velocity that closes the set-point error within one period."""

@@ -407,6 +407,13 @@ def _without_noise(config: Any) -> Any:
     return dataclasses.replace(config, noise_std=0.0)
 
 
+MAX_CONNECTIONS = 16
+"""Connections the MJPEG server holds at once (a stereo pair needs 2; a few viewers more): beyond, a
+newcomer is closed at once, so idle connections cannot pile up threads."""
+REQUEST_TIMEOUT_S = 10.0
+"""How long a connection may take to send its request line and headers before it is closed."""
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
     emulator: CameraEmulator
@@ -415,6 +422,15 @@ class _Server(ThreadingHTTPServer):
         super().__init__(*args, **kwargs)
         self._connections: set[socket.socket] = set()
         self._conn_lock = threading.Lock()
+        self._admitted = 0
+
+    def verify_request(self, request: Any, client_address: Any) -> bool:
+        """At most MAX_CONNECTIONS at once: a newcomer beyond is closed without a thread."""
+        with self._conn_lock:
+            if self._admitted >= MAX_CONNECTIONS:
+                return False
+            self._admitted += 1
+            return True
 
     def process_request_thread(self, request: Any, client_address: Any) -> None:
         with self._conn_lock:
@@ -424,6 +440,7 @@ class _Server(ThreadingHTTPServer):
         finally:
             with self._conn_lock:
                 self._connections.discard(request)
+                self._admitted -= 1
 
     def close_connections(self) -> None:
         """Shut every open stream down (the host's next read sees the end of the stream)."""
@@ -436,6 +453,7 @@ class _Server(ThreadingHTTPServer):
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.0"
     server: _Server
+    timeout = REQUEST_TIMEOUT_S  # for the request; a stream then has no timeout (see do_GET)
 
     def log_message(self, format: str, *args: Any) -> None:
         pass

@@ -41,11 +41,18 @@ def _check(run: twin.Run, controller: CloseUntilTouch, backend: str) -> np.ndarr
     assert run.metadata["phases"] == ["close", "hold"]
     hand, command = run.stream("hand"), run.stream("command")
     assert len(hand) == len(command) == 91  # 3 s at 30 Hz, both ends
+    # One clock (issue 37): each command answers the reading just before it and goes out before the
+    # next reading is taken, however late the loop runs on wall time
+    assert np.all(hand.t_s <= command.t_s) and np.all(command.t_s[:-1] < hand.t_s[1:])
     assert set(np.unique(command["phase"])) == {0, 1}
-    # every finger touched, and the last command holds it where the controller saw the touch
+    # every finger touched, and the last command holds it where the controller saw the touch: the
+    # recorded reading of that instant (the hand stream and the controller saw the same samples)
     assert sorted(controller.touched_at) == [0, 1, 2]
     held = command["position_counts"][-1, :3]
     assert np.array_equal(held, controller.hold)
+    for finger, t_s in controller.touched_at.items():
+        (at,) = np.flatnonzero(hand.t_s == t_s)
+        assert hand["position_counts"][at, finger] == held[finger]
     assert (held < units.FINGER_FULL_COUNTS).all() and (held > 5000).all()
     # the hand stopped near its hold (the foam pushes back less than the drive's stall)
     assert np.abs(hand["position_counts"][-1, :3] - held).max() < 300
@@ -64,13 +71,11 @@ def test_a_custom_controller_runs_on_the_twin_and_on_the_emulated_hand(tmp_path:
         name="squeeze-and-hold", phases=("close", "hold"), object_name="block",
     )  # fmt: skip
     assert a.status == b.status == "complete"
-    sim_held = _check(twin.open_run(a.run_dir), on_sim, "sim")
-    hw_held = _check(twin.open_run(b.run_dir), on_hw, "hardware")
-    # The same twin behind the emulator: F1 and F2 meet the block at the same place, give or take the
-    # wall clock's lateness (a reading 2 periods late is 330 counts at 5000 counts/s). The thumb F3 meets
-    # it wherever F1 and F2 have pushed it by then: seen 1000 counts apart on a loaded machine.
-    assert np.abs(sim_held - hw_held)[:2].max() < 400
-    assert np.abs(sim_held - hw_held)[2] < 2000
+    _check(twin.open_run(a.run_dir), on_sim, "sim")
+    _check(twin.open_run(b.run_dir), on_hw, "hardware")
+    # (Where the fingers meet the block on wall time depends on how late a loaded host runs the loop:
+    # a reading 2 periods late is 330 counts at 5000 counts/s. benchmarks/camera_bridge.py measures
+    # how closely a hardware run follows the twin's.)
     assert (tmp_path / "sim" / "run.rrd").stat().st_size > 0 and (tmp_path / "hw" / "run.rrd").is_file()
     assert "tactile" in twin.open_run(a.run_dir).streams  # the sim's pads, recorded as the CLI records them
 

@@ -1,5 +1,9 @@
 """The benchmark scripts compute what they claim (quick settings; no timing assertions)."""
 
+import signal
+import subprocess
+import sys
+
 import pytest
 
 from benchmarks import realtime, serial_cycle, tactile_sensors
@@ -27,6 +31,19 @@ def test_serial_cycle_rows_carry_the_wire_limit_beside_the_rate():
         in serial_cycle.to_markdown(results)
     )
     assert "| ratio | lost |" in serial_cycle.to_markdown(results)  # late replies recovered and counted
+
+
+def test_serial_cycle_stops_an_emulator_that_is_slow_to_leave_without_raising():
+    """A process that ignores SIGTERM with its output pipe full (a loaded machine's slow emulator):
+    stop() drains, kills and returns, so the benchmark keeps the rows it measured (issue 37)."""
+    code = (
+        "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('ready', flush=True); "
+        "print('x' * 200000, flush=True); time.sleep(120)"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "ready\n"  # SIGTERM is ignored from here on
+    serial_cycle.stop(proc, timeout_s=1.0)
+    assert proc.returncode == -signal.SIGKILL
 
 
 def test_why_the_pads_bin_contact_forces():

@@ -9,6 +9,7 @@ extra) builds a hardware backend without dm_control, and nothing here imports to
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -20,6 +21,7 @@ from twin.interface.errors import ConfigError
 from twin.recording import Run, open_run
 from twin.safety import SafetyLayer, SafetyLimits
 from twin.session import RunOutcome, default_run_dir
+from twin.validation import DAY_S, MIN_DURATION_S, SEED_LIMIT, check_number
 
 if TYPE_CHECKING:
     from experiments.compress import CompressProfile
@@ -107,6 +109,7 @@ def sim_backend(
     `stereo_calibration`: a `twin calibrate cameras` file to reconstruct with (default: the sim's truth)."""
     from twin.sim.backend import SimBackend
 
+    check_number(seed, "seed", kind=int, min=0, max=SEED_LIMIT - 1)  # numpy's range, in one line
     params = foam(obj) if isinstance(obj, str) else obj
     return SimBackend(
         params,
@@ -192,7 +195,24 @@ def _object_name(backend: Backend, given: str | None) -> str:
 
 
 def _out_dir(out: str | Path | None, experiment: str, object_name: str) -> Path:
-    return Path(out) if out is not None else default_run_dir(experiment, object_name)
+    """`out`, or runs/EXPERIMENT-OBJECT-TIMESTAMP: both names must be plain (no path of their own)."""
+    if out is not None:
+        return Path(out)
+    for what, value in (("name", experiment), ("object_name", object_name)):
+        if not isinstance(value, str) or not _PLAIN_NAME.fullmatch(value):
+            raise ConfigError(
+                f"{what} {value!r:.60}: letters, digits, '.', '_' and '-' only (it names the run directory)"
+            )
+    return default_run_dir(experiment, object_name)
+
+
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
+"""A name that may become part of a run directory's name: never a path, never hidden."""
+
+
+def _check_duration(duration_s: object) -> float:
+    """A run length as the CLI takes it (finite, at least 1 ms, at most a day), before anything exists."""
+    return float(check_number(duration_s, "duration_s", min=MIN_DURATION_S, max=DAY_S))
 
 
 def run(
@@ -217,6 +237,7 @@ def run(
     run.json's experiment record. Bad input raises ConfigError (a TwinError) before anything is written."""
     if not callable(controller):
         raise ConfigError(f"the controller must be callable (HandReading -> HandCommand), got {controller!r}")
+    duration_s = _check_duration(duration_s)
     from twin.session import run_experiment
 
     first = getattr(controller, "phase", None)
@@ -256,6 +277,7 @@ def compress(
     cameras (default: the sim's own, or rig.toml's bbox); `shape_model`: see `load_shape_model`."""
     from experiments.compress import run_compress
 
+    duration_s = _check_duration(duration_s)
     what = _object_name(backend, object_name)
     return run_compress(
         backend,
@@ -283,6 +305,7 @@ def free(
     eq. 4's hand terms."""
     from experiments.free_motion import run_free_motion
 
+    duration_s = _check_duration(duration_s)
     return run_free_motion(
         backend,
         _out_dir(out, "free", "none"),

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import existing_dir, out_file, seed
 
 
@@ -44,6 +45,7 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {args.out}: no such directory {args.out.parent}")
     if args.out.exists() and not args.force:
         raise ConfigError(f"--out {args.out}: exists; choose another file or overwrite it with --force")
+    check_writable(args.out.parent)  # before the calibration is computed
     from experiments.calibrate_cameras import calibrate_sim, calibrate_views
 
     outcome = calibrate_views(args.views) if args.views is not None else calibrate_sim(seed=args.seed or 0)

@@ -141,6 +141,8 @@ def run_metadata(path: Path, flag: str) -> dict:
         info = json.loads(run_json.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"{flag} {path}: run.json is unreadable ({exc})") from None
+    except RecursionError:
+        raise ConfigError(f"{flag} {path}: run.json is unreadable (nested too deeply)") from None
     return check_run_metadata(info, run_json)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import duration, integer, out_file, seed
 
 
@@ -47,6 +48,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         where.startswith("tcp:") and where[4:].isascii() and where[4:].isdigit() and int(where[4:]) < 65536
     ):
         raise ConfigError(f"--port {where!r}: expected pty or tcp:PORT (tcp:0 picks a free port)")
+    if args.what == "rig" and where != "pty" and int(where[4:]) > 65533:  # pads on PORT+1, cameras PORT+2
+        raise ConfigError(f"--port {where}: the rig serves PORT, PORT+1 and PORT+2: at most tcp:65533")
+    if args.rig_file is not None:
+        check_writable(args.rig_file.parent, "--rig-file")  # before the twin starts
     from hardware.bh262.emulator import make_hand_emulator
     from hardware.rig_config import rig_toml
     from hardware.rig_emulator import RigEmulator

@@ -21,13 +21,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", type=new_dir(), required=True, metavar="DIR", help="a new or empty directory")
     p.add_argument("--no-images", action="store_true", help="lerobot: leave the stereo frames out")
+    p.add_argument(
+        "--include-incomplete",
+        action="store_true",
+        help="export runs that did not end 'complete' too (each episode records its run's status)",
+    )
 
 
 def command(args: argparse.Namespace) -> int:
     """Export, then say where and what."""
     from twin.export import export_runs
 
-    out = export_runs(args.runs, args.out, args.format, images=not args.no_images)
+    out = export_runs(
+        args.runs,
+        args.out,
+        args.format,
+        images=not args.no_images,
+        include_incomplete=args.include_incomplete,
+    )
     if args.format == "lerobot":
         import json
 

@@ -7,6 +7,7 @@ import sys
 
 from twin.cli.common import SIZE_MM, WORKERS, YOUNG_PA, run_metadata
 from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import out_dir, run_dir
 
 
@@ -45,6 +46,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
         size = tuple(s / 1e3 for s in args.size_mm) if args.size_mm else None
         foam = get_object(args.object).with_overrides(size_m=size)  # unknown or ill-fitting: one line
+    check_writable(args.out or args.run_dir / "fit")  # every input checked; before minutes of replays
     from twin.sim.fit import fit_run
     from twin.sim.fit_report import write_fit
 

@@ -6,6 +6,7 @@ import argparse
 
 from twin.cli.common import SIZE_MM, WORKERS, add_mesh_scale, run_metadata
 from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import existing_file, experiment_name, finite, out_dir, run_dir
 
 
@@ -111,6 +112,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
                 "from the empty hand swinging its fingers)"
             )
     description = _described_object(args, metadata)
+    check_writable(args.out or args.run_dir / "identify")  # every input checked; before minutes of computing
     from twin.identify.identify import identify_run
     from twin.identify.report import FigureProcess, write_results
 

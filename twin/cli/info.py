@@ -7,6 +7,7 @@ import json
 
 from twin.cli.common import surface_summary
 from twin.interface.errors import ConfigError
+from twin.recording.liveness import writer_alive
 from twin.validation import check_run_metadata, experiment_name, run_dir
 
 
@@ -23,6 +24,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     run = open_run(args.run_dir)
     meta = check_run_metadata(run.info, run.path / "run.json")
+    alive = writer_alive(run.info) if run.status == "running" else None
     summary = run.summary()
     differ = [
         {"stream": name, "readable": readable, "recorded": recorded}
@@ -34,6 +36,7 @@ def cmd_info(args: argparse.Namespace) -> int:
                 {
                     "path": str(run.path),
                     "status": run.status,
+                    "writer_alive": alive,
                     "error": run.info.get("error"),
                     "warnings": run.warnings,
                     "streams": summary,
@@ -52,7 +55,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     console = Console()
-    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {escape(run.status)}")
+    console.print(f"[bold]{escape(str(run.path))}[/bold]  status: {escape(_status(run.status, alive))}")
     if isinstance(run.info.get("error"), str):
         console.print(f"  [red]error: {escape(run.info['error'])}")
     for warning in run.warnings:
@@ -115,13 +118,22 @@ def _calibration_summary(cal: dict) -> str:
     return text + ")"
 
 
+def _status(status: str, writer_alive: bool | None) -> str:
+    """The status as run.json has it, and for a `running` run whether its writer still lives."""
+    if status != "running" or writer_alive is None:
+        return status
+    if writer_alive:
+        return "running (being written now)"
+    return "running, but its writer is gone: killed or crashed, it will never close (treat as incomplete)"
+
+
 def _object_summary(obj: dict) -> str:
     """name (shape, E, nu) of a run's object, with whichever of them run.json records."""
     details = [obj["shape"]] if "shape" in obj else []
     if "young_pa" in obj:
         details.append(f"E = {obj['young_pa']:g} Pa")
     if "poisson" in obj:
-        details.append(f"nu = {obj['poisson']:g}")
+        details.append(f"nu = {obj['poisson']!r}")  # as recorded: 0.49999999999 is not 0.5
     return f"{obj.get('name', '?')} ({', '.join(details)})"
 
 

@@ -6,6 +6,7 @@ import argparse
 
 from twin.cli.common import WORKERS
 from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import duration, integer, out_dir, run_dir, seed
 
 
@@ -53,6 +54,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from experiments.sweep import check_ray_address, draw_trajectories, sweep, trajectory_from_run
     from twin.sim.foam import get_object
 
+    check_writable(args.out)  # before a trajectory is simulated
     if args.from_runs:
         for run_dir in args.from_runs:
             entry = trajectory_from_run(run_dir, args.out, points=args.points)

@@ -6,6 +6,8 @@ import argparse
 import json
 from typing import TYPE_CHECKING
 
+from twin.interface.errors import ConfigError
+from twin.outputs import check_writable
 from twin.validation import existing_dir, finite, integer, out_dir, seed
 
 if TYPE_CHECKING:
@@ -63,6 +65,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     from twin.api.shape import train_shape_network
 
+    if args.folds is not None and args.validation is not None:  # (also the API's check) before the probe
+        raise ConfigError("--folds and --validation: choose one way to hold trajectories out")
+    check_writable(args.out or args.dataset / "models")  # before any network is trained
     bar = Progress(console=Console(stderr=True), transient=True, disable=args.json)
     task = None
 

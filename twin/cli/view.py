@@ -77,11 +77,13 @@ def cmd_view(args: argparse.Namespace) -> int:
     has_display = (
         sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
     )
-    if not has_display:  # the blueprint file must outlive this process: next to the system's temp files
-        blueprint = Path(tempfile.gettempdir()) / f"twin-view-{args.run_dir.resolve().name}.rbl"
+    if not has_display:  # the blueprint must outlive this process: in a private directory of its own
+        private = Path(tempfile.mkdtemp(prefix="twin-view-"))  # mode 0700, a name nobody can plant
+        blueprint = private / f"{args.run_dir.resolve().name or 'run'}.rbl"
         try:
             files = view_files(args.run_dir, blueprint)
         except Exception as exc:  # an unreadable .rrd: one line
+            shutil.rmtree(private, ignore_errors=True)
             return fail(f"cannot read {rrd}: {exc}")
         print("\n".join(web_instructions(files)))
         return 0

@@ -141,6 +141,7 @@ def write_lerobot(runs: list[Path], out: Path, images: bool = True) -> Path:
                 "meta/episodes/chunk_index": 0,
                 "meta/episodes/file_index": 0,
                 "source_run": str(e.run.path),
+                "source_status": e.run.status,
             }
         )
         start += n

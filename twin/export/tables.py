@@ -22,7 +22,8 @@ def _column(values: np.ndarray | list) -> pa.Array:
         return pa.array([np.asarray(v).reshape(-1) for v in values])
     if values.ndim == 1:
         return pa.array(values)
-    flat = np.ascontiguousarray(values).reshape(len(values), -1)
+    width = int(np.prod(values.shape[1:]))  # (not -1: a stream with no samples has nothing to infer from)
+    flat = np.ascontiguousarray(values).reshape(len(values), width)
     return pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1)), flat.shape[1])
 
 
@@ -44,7 +45,7 @@ def write_tables(runs: list[Path], out: Path) -> Path:
                 **{field: _column(values) for field, values in data.fields.items()},
             }
             tables.setdefault(name, []).append(pa.table(columns))
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)  # (twin.export writes into a fresh temporary directory)
     for name, parts in tables.items():
         pq.write_table(pa.concat_tables(parts, promote_options="default"), out / f"{name}.parquet")
     (out / "runs.json").write_text(json.dumps(index, indent=1, default=str))

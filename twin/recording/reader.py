@@ -202,6 +202,8 @@ def _load_info(path: Path) -> dict:
         raise RunFormatError(f"{path} has no {RUN_FILE}; not a barrett-twin run") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise RunFormatError(f"{info_path} is unreadable: {exc}") from None
+    except RecursionError:
+        raise RunFormatError(f"{info_path} is unreadable: nested too deeply") from None
     if not isinstance(info, dict) or info.get("format") != FORMAT:
         raise RunFormatError(f"{info_path} is not a {FORMAT} file")
     if info.get("format_version") != FORMAT_VERSION:
@@ -215,11 +217,19 @@ def _load_info(path: Path) -> dict:
 
 
 def _load_specs(info: dict, path: Path) -> dict[str, StreamSpec]:
-    """The stream specs declared in run.json; RunFormatError if any is malformed."""
+    """The stream specs declared in run.json; RunFormatError if any is malformed, or filed under a key
+    that is not its own (checked) name: every reader (export, info, compare) may then use a key as a
+    file name, and none can name a path outside the run."""
     try:
-        return {name: StreamSpec.from_json(d) for name, d in info["streams"].items()}
+        specs = {key: StreamSpec.from_json(d) for key, d in info["streams"].items()}
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise RunFormatError(f"{path / RUN_FILE}: bad stream spec: {exc!r}") from None
+    for key, spec in specs.items():
+        if key != spec.name:
+            raise RunFormatError(
+                f"{path / RUN_FILE}: stream key {key!r} is not its spec's name {spec.name!r}"
+            )
+    return specs
 
 
 def _load_digests(info: dict, path: Path) -> dict[str, dict]:

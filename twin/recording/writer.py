@@ -13,10 +13,15 @@ batch. run.json is only ever replaced whole (temp file + os.replace), never half
 What a run directory promises:
 
 - status: "running" while written (and forever, if the writer was killed: the reader then recovers
-  every complete batch); "complete" (every stream written to its end), "failed" or "interrupted",
-  with ``error``: one line saying why, and what was verified after (the rig's stop, e.g. whether the
-  hand acknowledged its idle). A "complete" run may carry ``warnings`` (a list of lines, e.g. a hand
-  loop that missed its declared rate): the recording is whole, but something about it needs saying.
+  every complete batch, and ``writer`` (PID, host, boot id, start time; twin.recording.liveness)
+  lets a reader on the same host tell that the writer is gone); "complete" (every stream written to
+  its end), "failed" or "interrupted", with ``error``: one line saying why, and what was verified
+  after (the rig's stop, e.g. whether the hand acknowledged its idle). A "complete" run may carry
+  ``warnings`` (a list of lines, e.g. a hand loop that missed its declared rate): the recording is
+  whole, but something about it needs saying. ``run_id`` names the run wherever it is copied.
+- time: every stream's ``t_s`` is seconds on the run's one clock (sim time; on hardware, wall time
+  since the rig started), the clock every device of the backend reads; each stream's description
+  says which instant of a sample it stamps (e.g. a reading when it was taken, a command when sent).
 - integrity: a closed run's run.json holds each stream file's size and SHA-256 as written
   (``integrity``); the reader checks them and refuses a stream file changed since (RunFormatError).
   run.json itself is plain text and carries no digest.
@@ -28,12 +33,15 @@ What a run directory promises:
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import functools
 import hashlib
 import json
 import math
 import os
 import time
+import uuid
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -45,6 +53,7 @@ import pyarrow as pa
 from numpy.typing import ArrayLike
 
 from twin.interface.errors import RunDirectoryLostError
+from twin.recording.liveness import writer_identity
 from twin.recording.schema import FieldSpec, StreamSpec, arrow_schema, to_arrow
 
 FORMAT = "barrett-twin-run"
@@ -56,6 +65,11 @@ STATUSES = frozenset({"complete", "failed", "interrupted"})
 """Final statuses accepted by ``RunWriter.close`` (a run being written is "running")."""
 DIGEST = "sha256"
 """The digest of each stream file recorded in a closed run's run.json (``integrity``)."""
+RESERVE_FILE = ".status-reserve"
+"""Space held in the run directory while it is written, given up to write the final run.json when the
+disk is full: a run stopped by a full disk still says so (status "failed"), not "running"."""
+RESERVE_BYTES = 256 * 1024
+_FULL = (errno.ENOSPC, errno.EDQUOT)
 _DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
 
 
@@ -91,11 +105,16 @@ def write_json_atomic(path: Path, data: dict, dir_fd: int | None = None) -> None
     tmp_path, final = (tmp, path.name) if dir_fd is not None else (path.with_name(tmp), path)
     text = json.dumps(data, indent=2, default=_json_default)
     fd = os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644, **where)
-    with open(fd, "w", encoding="utf-8") as f:
-        f.write(text + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp_path, final, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+    try:
+        with open(fd, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp_path, final, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+    except BaseException:  # a full disk, an I/O error: no half-written temporary file left behind
+        with contextlib.suppress(OSError):
+            os.unlink(tmp_path, **where)
+        raise
 
 
 def file_digest(fd: int) -> dict[str, Any]:
@@ -120,12 +139,21 @@ def _check_run_dir(run_dir: Path) -> None:
     run_dir.mkdir(parents=True, exist_ok=True)
 
 
+def _with_path(exc: OSError, path: str) -> OSError:
+    """The same error naming `path`, if it names no file (pyarrow's and a flush's do not)."""
+    if exc.filename is not None or exc.errno is None:
+        return exc
+    return OSError(exc.errno, exc.strerror or str(exc), path)
+
+
 class _StreamFile:
     """One open stream: its Arrow writer, its row buffer and its bookkeeping."""
 
-    def __init__(self, spec: StreamSpec, name: str, dir_fd: int) -> None:
+    def __init__(self, spec: StreamSpec, name: str, dir_fd: int, shown: str = "") -> None:
         self.spec = spec
         self.name = name
+        self.shown = shown or name
+        """The file's path as an error names it."""
         self.schema = arrow_schema(spec)
         fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644, dir_fd=dir_fd)
         self.file: IO[bytes] = open(fd, "wb")  # noqa: SIM115 - closed in close()
@@ -155,6 +183,12 @@ class _StreamFile:
         """Write the buffered rows as one record batch and push it to the OS."""
         if not self.t:
             return
+        try:
+            self._write()
+        except OSError as exc:  # a full disk, an I/O error: the error names the file
+            raise _with_path(exc, self.shown) from None
+
+    def _write(self) -> None:
         columns = [pa.array(self.t, type=pa.float64())]
         for name, fspec in self.spec.fields.items():
             rows = self.rows[name]
@@ -174,8 +208,11 @@ class _StreamFile:
             self.file.flush()
             os.fsync(self.file.fileno())
             return file_digest(self.file.fileno())
+        except OSError as exc:
+            raise _with_path(exc, self.shown) from None
         finally:
-            self.file.close()
+            with contextlib.suppress(OSError):  # (its buffer may not fit on a full disk either)
+                self.file.close()
 
     def is_at(self, dir_fd: int) -> bool:
         """True while the stream's name in its directory still leads to the file being written."""
@@ -241,6 +278,8 @@ class RunWriter:
             "format_version": FORMAT_VERSION,
             "status": "running",
             "created_utc": _utc_now(),
+            "run_id": uuid.uuid4().hex,
+            "writer": writer_identity(),
             "streams": {},
             "warnings": [],
             "metadata": self._metadata,
@@ -255,12 +294,18 @@ class RunWriter:
             raise
         self._identity = (os.fstat(self._dir_fd), os.fstat(self._streams_fd))
         self._checked_s = time.monotonic()
+        self._reserve()
         self._write_info()
 
     @property
     def run_dir(self) -> Path:
         """The run directory being written."""
         return self._run_dir
+
+    @property
+    def closed(self) -> bool:
+        """True once close() has run (whatever it managed to write)."""
+        return self._closed
 
     @property
     def warnings(self) -> list[str]:
@@ -284,7 +329,9 @@ class RunWriter:
             names.add(spec.name)
         self.check_identity()
         for spec in specs:
-            self._streams[spec.name] = _StreamFile(spec, f"{spec.name}{STREAM_SUFFIX}", self._streams_fd)
+            name = f"{spec.name}{STREAM_SUFFIX}"
+            shown = str(self._run_dir / STREAMS_DIR / name)
+            self._streams[spec.name] = _StreamFile(spec, name, self._streams_fd, shown)
             self._info["streams"][spec.name] = spec.to_json()
         self._write_info()
 
@@ -369,7 +416,16 @@ class RunWriter:
                 status, error = "failed", f"closing streams: {failure}"
             self._info.update(status=status, error=error, closed_utc=_utc_now())
             self._info["integrity"] = {"algorithm": DIGEST, "streams": digests}
-            self._write_info(checked=True)
+            try:
+                self._write_info(checked=True)
+            except OSError as exc:
+                if exc.errno not in _FULL:
+                    raise
+                self._release_reserve()  # the space held for this very write
+                if status == "complete":
+                    self._info.update(status="failed", error=f"writing run.json: {exc.strerror}")
+                self._write_info(checked=True)
+            self._release_reserve()
         finally:
             os.close(self._streams_fd)
             os.close(self._dir_fd)
@@ -391,6 +447,24 @@ class RunWriter:
             self.close("interrupted")
         else:
             self.close("failed", error=str(exc) or type(exc).__name__)
+
+    def _reserve(self) -> None:
+        """Hold RESERVE_BYTES in the run directory for the final run.json (best effort)."""
+        try:
+            fd = os.open(RESERVE_FILE, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600, dir_fd=self._dir_fd)
+        except OSError:
+            return
+        try:
+            os.posix_fallocate(fd, 0, RESERVE_BYTES)
+        except (OSError, AttributeError):
+            with contextlib.suppress(OSError):
+                os.write(fd, bytes(RESERVE_BYTES))
+        finally:
+            os.close(fd)
+
+    def _release_reserve(self) -> None:
+        with contextlib.suppress(OSError):
+            os.unlink(RESERVE_FILE, dir_fd=self._dir_fd)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -414,4 +488,7 @@ class RunWriter:
         if not checked:
             self.check_identity()
         self._info["samples"] = {name: sf.written for name, sf in self._streams.items()}
-        write_json_atomic(self._run_dir / RUN_FILE, self._info, dir_fd=self._dir_fd)
+        try:
+            write_json_atomic(self._run_dir / RUN_FILE, self._info, dir_fd=self._dir_fd)
+        except OSError as exc:
+            raise _with_path(exc, str(self._run_dir / RUN_FILE)) from None

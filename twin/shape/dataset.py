@@ -172,6 +172,8 @@ def _index_entries(index_path: Path) -> list[dict]:
         index = json.loads(index_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(f"{index_path}: not readable JSON ({exc}); rerun the sweep") from None
+    except RecursionError:
+        raise ConfigError(f"{index_path}: not readable JSON (nested too deeply); rerun the sweep") from None
     entries = index.get("trajectories") if isinstance(index, dict) else None
     if not isinstance(entries, list):
         raise ConfigError(f"{index_path}: no 'trajectories' list; not a sweep index (rerun the sweep)")
@@ -195,6 +197,11 @@ def split_by_trajectory(data: Samples, validation_fraction: float, seed: int) ->
         raise ConfigError("a held-out validation needs >= 2 trajectories; sweep more")
     rng = np.random.default_rng(seed)
     n_val = max(1, round(validation_fraction * len(ids)))
+    if n_val >= len(ids):  # nothing left to train on
+        raise ConfigError(
+            f"--validation {validation_fraction:g} holds out all {len(ids)} trajectories, leaving none to "
+            f"train on; hold out at most {(len(ids) - 1) / len(ids):.3g}, or sweep more"
+        )
     held = rng.choice(ids, size=n_val, replace=False)
     val = np.isin(data.trajectory, held)
     return data.subset(~val), data.subset(val)

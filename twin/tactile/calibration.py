@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from twin.interface.devices import N_TAXELS, TAXEL_COUNT_MAX
 from twin.interface.errors import ConfigError
 from twin.tactile.layout import LAYOUT
+from twin.validation import parse_decimal
 
 POINTS_HEADER = ("taxel", "pressure_kpa", "count")
 TABLE_HEADER = ("taxel", "a_kpa_per_count", "b_kpa")
@@ -113,9 +114,11 @@ def _rows(path: Path, header: tuple[str, ...]) -> list[tuple[int, list[str]]]:
 
 def _number(path: Path, lineno: int, text: str, kind: type = float) -> float:
     try:
-        value = kind(text)
+        value = parse_decimal(text, kind)
     except ValueError:
-        raise CalibrationFileError(f"{path}:{lineno}: {text!r} is not a number") from None
+        if text.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise CalibrationFileError(f"{path}:{lineno}: {text!r} is not finite") from None
+        raise CalibrationFileError(f"{path}:{lineno}: {text!r} is not a number (plain decimals)") from None
     if not np.isfinite(value):
         raise CalibrationFileError(f"{path}:{lineno}: {text!r} is not finite")
     return value

@@ -9,7 +9,10 @@ frame x right, y down, z forward; R, t map a point from the left camera frame to
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -98,9 +101,15 @@ class StereoCalibration:
     def save(self, path: Path | str) -> Path:
         """Write the JSON file (atomically: a crash never leaves half a calibration)."""
         path = Path(path)
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(json.dumps(self.to_json(), indent=2) + "\n")
-        tmp.replace(path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # O_EXCL
+        try:
+            with open(fd, "w", encoding="utf-8") as f:
+                f.write(json.dumps(self.to_json(), indent=2) + "\n")
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
         return path
 
     @classmethod
@@ -115,6 +124,8 @@ class StereoCalibration:
             raise StereoCalibrationError(f"{path}: cannot read ({exc})") from None
         except json.JSONDecodeError as exc:
             raise StereoCalibrationError(f"{path}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+        except RecursionError:
+            raise StereoCalibrationError(f"{path}: not valid JSON (nested too deeply)") from None
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise StereoCalibrationError(f"{path}: not a stereo calibration (format must be {FORMAT!r})")
 

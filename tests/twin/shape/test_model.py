@@ -36,6 +36,13 @@ def test_held_out_trajectories_are_whole():
     assert len(np.unique(val.trajectory)) == 3 and len(tr) + len(val) == len(data)
 
 
+@pytest.mark.parametrize("fraction", [0.96, 0.999, 1.0])
+def test_a_held_out_fraction_that_leaves_nothing_to_train_on_is_one_line(fraction):
+    """`train --validation 0.999` once reshaped an empty training set (issue 37): now one line."""
+    with pytest.raises(ConfigError, match="leaving none to train on"):
+        split_by_trajectory(_synthetic(trajectories=12, per=4), fraction, seed=0)
+
+
 def test_fast_numpy_prediction_equals_torch_and_survives_save_load(tmp_path):
     rng = np.random.default_rng(1)
     model = ShapeModel(

@@ -1,0 +1,49 @@
+"""A second Ctrl-C during shutdown (issue 37): the run's final status is written whole before it takes
+effect, and the CLI's line says what run.json holds, not what it meant to write."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+TWIN = [sys.executable, "-m", "twin.cli"]
+
+
+def _wait_for_samples(run_dir: Path, timeout_s: float = 120) -> None:
+    hand = run_dir / "streams" / "hand.arrows"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if hand.exists() and hand.stat().st_size > 2000:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"{run_dir}: no samples within {timeout_s} s")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gap_s", [0.0, 0.05, 0.15, 0.2])
+def test_a_second_ctrl_c_never_leaves_the_run_running(gap_s: float, tmp_path: Path):
+    proc = subprocess.Popen(
+        [*TWIN, "run", "compress", "--duration", "60", "--out", "r", "--no-progress"],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        _wait_for_samples(tmp_path / "r")
+        proc.send_signal(signal.SIGINT)
+        time.sleep(gap_s)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    status = json.loads((tmp_path / "r" / "run.json").read_text())["status"]
+    assert status == "interrupted", err
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "is marked 'interrupted'" in lines[0], err

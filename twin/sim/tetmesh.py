@@ -30,6 +30,9 @@ MAX_VERTICES = 3000
 """Most mesh vertices a foam may have: each is a 3-dof body in the sim, which must stay fast."""
 MIN_TETS = 4
 """Fewest tetrahedra a foam may have: fewer cannot bend or bulge at all."""
+DECIMATE_ABOVE = 4
+"""A surface with over this many times the decimation target is decimated; a coarser one (a CAD export, a
+light scan) goes to gmsh's re-meshing as it is."""
 TRIANGLES_PER_EDGE_AREA = 4.0
 """A scan is decimated to this many triangles per equilateral triangle of the foam's edge length: finer than
 the tetrahedral mesh needs (gmsh re-meshes at the edge length), coarse enough to mesh in a second."""
@@ -486,11 +489,11 @@ def _file_mesh_cached(path: str, key: tuple[int, int], edge_m: float, scale: flo
 def _decimate(surface: Surface, edge_m: float, where: str) -> tuple[Surface, float]:
     """A scan finer than the foam's edge length, decimated (fast-simplification's quadric decimation) to
     about TRIANGLES_PER_EDGE_AREA triangles per equilateral triangle of edge_m over its area, and how far it
-    moved (the Hausdorff distance between the two vertex sets). A coarser surface is kept as it is."""
+    moved (the Hausdorff distance, sampled). One within DECIMATE_ABOVE times that is kept as it is."""
     a, b, c = (surface.points_m[surface.triangles[:, i]] for i in range(3))
     area_m2 = float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()) / 2.0
     target = max(64, round(TRIANGLES_PER_EDGE_AREA * area_m2 / (math.sqrt(3.0) / 4.0 * edge_m**2)))
-    if len(surface.triangles) <= 2 * target:
+    if len(surface.triangles) <= DECIMATE_ABOVE * target:  # gmsh re-meshes such a surface at edge_m itself
         return surface, 0.0
     import fast_simplification
     from scipy.spatial import cKDTree

@@ -27,6 +27,21 @@ if TYPE_CHECKING:
     from twin.session import RunOutcome
 
 PHASES = ("close", "balance", "compress")
+BALANCE_SPAN_COUNTS = 200.0
+"""Travel over which a finger's stiffness is read during the balance (a span of ~4 sigma in its
+positions): over 200 counts the 0.0085 N*m strain resolution is under a tenth of the slope's rise on
+the softest foam the procedure answers for."""
+BALANCE_MIN_T = 3.0
+"""A finger's stiffness is read only where its torque follows its position: the slope's t statistic
+(r sqrt((n - 2) / (1 - r^2)), n the readings' weight) at least this. A finger chattering on a faithful
+foam's facets (its torque swinging over the gauge's range within a cycle) keeps the least gain; on a
+16 kPa sphere the slope is read at t ~ 3.3 within the balance's first second."""
+BALANCE_GAIN_CEILING = 10.0
+"""The gain a measured stiffness may ask for, in multiples of the least: 10 covers the softest foam
+measured (7e-5 N*m per count) at a 0.7 s time constant."""
+BALANCE_MEMORY_S = 1.0
+"""How long a balance reading weighs in the finger's stiffness: the touch's overshoot (the torque
+relaxing while the finger still closes) is forgotten within the balance's first second."""
 REACQUIRE_LEAD_COUNTS = 150.0
 """How far a re-closing finger's set point may lead its position: one 30 Hz cycle of the re-close
 (100 counts) and some, so the twin re-closes unhindered and a late hand is not wound up."""
@@ -56,7 +71,13 @@ class CompressProfile:
     """About four times the gauge noise (0.005 N*m): a balanced grasp, not one noisy reading."""
     balance_timeout_s: float = 5.0
     balance_gain_counts_per_nm_s: float = 2000.0
-    """Integral gain of the torque balance (counts per N*m of error per second)."""
+    """Least integral gain of the torque balance (counts per N*m of error per second): the gain where
+    the finger's stiffness is not yet measured, and on stiff objects."""
+    balance_settle_s: float = 0.5
+    """The balance's time constant where the finger's stiffness is measured: the gain is 1 / (stiffness
+    x this), within 1-BALANCE_GAIN_CEILING times `balance_gain_counts_per_nm_s`. A fixed gain that is
+    stable on a firm block crawls on a soft foam (on a 16 kPa sphere under MuJoCo 4.0, 7e-5 N*m per
+    count: a 4.5 s time constant that outlasted the balance's timeout)."""
     reacquire_velocity_counts_s: float = 3000.0
     """A finger whose load falls below half the contact torque during balance has lost the object
     (the fast touch of F1 and F2 can knock a block off the thumb): it closes at this speed until it
@@ -102,6 +123,9 @@ class CompressController:
     _over: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=int))
     _t_phase: float = 0.0
     _t_last: float | None = None
+    _fit: np.ndarray = field(default_factory=lambda: np.zeros((6, 3)))
+    """Sums n, p, tau, p^2, p*tau, tau^2 of each finger's balance readings: its stiffness by least
+    squares."""
     grasp_counts: np.ndarray | None = None
 
     def __call__(self, reading: HandReading) -> HandCommand:
@@ -144,7 +168,10 @@ class CompressController:
     ) -> np.ndarray:
         p = self.profile
         error = p.grasp_torque_nm - torque
-        step = np.clip(p.balance_gain_counts_per_nm_s * error * dt, -100.0, 100.0)
+        stiffness = self._stiffness(position, torque, dt)
+        least = p.balance_gain_counts_per_nm_s
+        gain = np.clip(1.0 / (stiffness * p.balance_settle_s), least, BALANCE_GAIN_CEILING * least)
+        step = np.clip(gain * error * dt, -100.0, 100.0)
         lost = load < p.contact_torque_nm / 2
         # Re-close only while the finger keeps up with its set point: on a hand whose replies come a
         # cycle or two late the set point would otherwise run ahead and slam it into the object.
@@ -157,6 +184,23 @@ class CompressController:
             self.grasp_counts = self._hold_counts.copy()
             self._enter("compress", t_s)
         return self._hold_counts
+
+    def _stiffness(self, position: np.ndarray, torque: np.ndarray, dt: float) -> np.ndarray:
+        """Each finger's distal torque per count of travel over its recent balance readings (least
+        squares, weights fading over BALANCE_MEMORY_S so the touch's transient is forgotten); infinite
+        (so the least gain) until the finger has moved about BALANCE_SPAN_COUNTS, or where the slope is
+        not positive."""
+        self._fit *= math.exp(-dt / BALANCE_MEMORY_S)
+        self._fit += np.stack([np.ones(3), position, torque, position**2, position * torque, torque**2])
+        n, sp, st, spp, spt, stt = self._fit
+        var_p = spp / n - (sp / n) ** 2
+        var_t = np.maximum(stt / n - (st / n) ** 2, 0.0)
+        cov = spt / n - sp * st / n**2
+        slope = cov / np.maximum(var_p, 1e-9)
+        r2 = cov**2 / np.maximum(var_p * var_t, 1e-30)
+        t2 = r2 * np.maximum(n - 2.0, 0.0) / np.maximum(1.0 - r2, 1e-12)  # the slope's t statistic, squared
+        measured = (var_p >= (BALANCE_SPAN_COUNTS / 4) ** 2) & (slope > 0) & (t2 >= BALANCE_MIN_T**2)
+        return np.where(measured, np.maximum(slope, 1e-12), np.inf)
 
     def _compress(self, t_s: float) -> np.ndarray:
         p = self.profile

@@ -116,6 +116,49 @@ def test_a_finger_knocked_off_the_object_closes_again_and_the_balance_waits_for_
     assert grasp_torque == pytest.approx(np.full(3, profile.grasp_torque_nm), abs=tolerance)
 
 
+def test_the_balance_moves_a_soft_finger_at_its_own_pace():
+    """On a finger of 7e-5 N*m per count (a 16 kPa sphere under MuJoCo 4.0) the least gain alone has a
+    4.5 s time constant and times out; reading the finger's stiffness, the balance settles within 3 s."""
+    profile = CompressProfile()
+    controller = CompressController(profile)
+    hand = ToyHand(stiffness_nm_per_count=7e-5)
+    log = drive(controller, hand, 10.0)
+    t_balance = next(t for t, p, _ in log if p == "balance")
+    t_compress = next(t for t, p, _ in log if p == "compress")
+    assert t_compress - t_balance < 3.0, t_compress - t_balance
+    grasp_torque = hand.k * (controller.grasp_counts - hand.contact)
+    resolution_nm = float(units.strain_to_torque_nm(np.array([1.0, 0.0])) @ [1.0, -1.0])
+    tolerance = profile.balance_tolerance_nm + resolution_nm / 2
+    assert grasp_torque == pytest.approx(np.full(3, profile.grasp_torque_nm), abs=tolerance)
+    # The least gain alone: the same finger is not balanced when the timeout ends the balance.
+    fixed = CompressController(CompressProfile(balance_settle_s=1e9))
+    log = drive(fixed, ToyHand(stiffness_nm_per_count=7e-5), 10.0)
+    t_compress = next(t for t, p, _ in log if p == "compress")
+    assert t_compress - next(t for t, p, _ in log if p == "balance") >= profile.balance_timeout_s - 0.05
+
+
+def test_a_finger_whose_torque_does_not_follow_its_position_keeps_the_least_gain():
+    """A finger chattering on a faithful foam's facets: torques swinging over the gauge's range, whatever
+    the position. No stiffness is read from it, so no set point moves faster than the least gain."""
+    profile = CompressProfile()
+    controller = CompressController(profile)
+    rng = np.random.default_rng(0)
+    dt = 1 / 30.0
+    controller(HandReading(0.0, np.zeros(4, np.int32), np.zeros(4, np.int32), np.zeros(3, np.int32)))
+    controller.phase, controller._hold_counts = "balance", np.full(3, 13000.0)
+    for k in range(1, 150):
+        torque = rng.uniform(-1.0, 1.0, 3)
+        strain = np.round(units.torque_nm_to_strain(torque)).astype(np.int32)
+        position = np.append(controller._hold_counts + rng.normal(0, 100, 3), 0).astype(np.int32)
+        before = controller._hold_counts.copy()
+        error = profile.grasp_torque_nm - units.strain_to_torque_nm(strain)
+        controller(HandReading(k * dt, position, np.zeros(4, np.int32), strain))
+        if controller.phase != "balance":
+            break
+        moved = np.abs(controller._hold_counts - before)
+        assert (moved <= profile.balance_gain_counts_per_nm_s * np.abs(error) * dt + 1e-6).all(), k
+
+
 def test_set_points_never_pass_the_hands_limit_even_with_nothing_in_it():
     """An empty hand: the close times out, the balance re-closes fingers that feel nothing, and the
     compression rides on top; no set point may pass the hand's limit, which the safety layer would

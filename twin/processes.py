@@ -20,8 +20,11 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from types import FrameType
 from typing import Any
+
+from twin.interface.errors import WorkerLostError
 
 PR_SET_PDEATHSIG = 1
 """prctl option (linux/prctl.h): the signal this process gets when its parent thread dies."""
@@ -112,6 +115,12 @@ def worker_pool(
     )
     try:
         yield pool
+    except BrokenProcessPool as exc:  # a worker killed (the OOM killer, `kill -9`): one line, not a traceback
+        stop_workers(pool)
+        raise WorkerLostError(
+            "a worker process ended abruptly (killed, or out of memory): run the command again, "
+            "with fewer --workers if memory is short"
+        ) from exc
     except BaseException:
         stop_workers(pool)
         raise

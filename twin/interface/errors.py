@@ -27,3 +27,7 @@ class SimulationUnstableError(TwinError):
 
 class RunDirectoryLostError(TwinError):
     """The run directory was removed or replaced while the run was being written."""
+
+
+class WorkerLostError(TwinError):
+    """A worker process of a parallel computation ended abruptly (killed, or out of memory)."""

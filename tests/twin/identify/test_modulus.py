@@ -376,3 +376,43 @@ def test_the_power_law_through_too_few_or_far_like_grasps_is_nan_or_finite_never
     assert math.isfinite(power) and math.isfinite(scatter) and np.isfinite(weight).all()
     alone = np.r_[1.0, np.zeros(8)]
     assert math.isnan(weighted_power_law(log_e, log_s, alone, float(log_s[4]))[0])
+
+
+def _children(pid: int) -> list[int]:
+    """The process's children, from /proc (Linux)."""
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def test_a_worker_killed_mid_estimate_is_one_line_not_a_traceback(sphere_run, tmp_path):
+    """The OOM killer (here SIGKILL) taking one of the twin's simulation workers: `twin identify` ends in
+    one line naming what happened and a non-zero status, and leaves no worker behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    argv = [sys.executable, "-m", "twin.cli", "identify", str(sphere_run), "--no-progress"]
+    argv += ["--out", str(tmp_path / "o")]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline, worker = time.monotonic() + 300, None
+        while worker is None and proc.poll() is None and time.monotonic() < deadline:
+            for child in _children(proc.pid):
+                try:
+                    if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                        worker = child
+                except OSError:
+                    pass
+            time.sleep(0.05)
+        assert worker is not None, proc.communicate()
+        os.kill(worker, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode not in (0, None)
+    assert err.count("\n") == 1 and err.startswith("twin: error: a worker process ended abruptly"), err
+    assert not [c for c in _children(proc.pid)]

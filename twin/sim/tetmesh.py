@@ -621,7 +621,15 @@ def _mesh_surface(surface: Surface, edge_m: float, where: str) -> TetMesh:
             f"{len(decimated.triangles):,} (at most {MAX_MESHED_TRIANGLES:,} are meshed as they are; fans of "
             "very thin triangles stall the decimation): re-mesh the scan more evenly first"
         )
-    _check_self_intersections(decimated, where)
+    try:
+        _check_self_intersections(decimated, where)
+    except ConfigError as exc:
+        if decimated is surface:
+            raise
+        raise ConfigError(  # the scan may be sound: quadric decimation can fold a surface onto itself
+            f"{exc} after decimating the scan to {len(decimated.triangles)} triangles (re-mesh it more "
+            "evenly first)"
+        ) from None
     mesh = _tetrahedralise(decimated, edge_m, where, remesh=decimated is surface)
     _check_counts(mesh, edge_m, where)
     _check_volume(mesh, decimated, where, remeshed=decimated is surface)

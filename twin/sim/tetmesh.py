@@ -646,6 +646,16 @@ def _decimation_target(surface: Surface, edge_m: float) -> int | None:
     return None if len(surface.triangles) <= DECIMATE_ABOVE * target else target
 
 
+def decimated_surface(surface: Surface, edge_m: float, where: str) -> Surface:
+    """`surface` decimated for edge_m (_decimate) in a worker a Ctrl-C kills at once (the quadric
+    decimation of a 10^6-triangle scan is ~8 s of C code); `surface` itself if it needs none."""
+    if _decimation_target(surface, edge_m) is None:
+        return surface
+    from twin.processes import run_killable
+
+    return run_killable(_decimate, surface, edge_m, where)[0]
+
+
 def _decimate(surface: Surface, edge_m: float, where: str) -> tuple[Surface, float]:
     """A scan finer than the foam's edge length, decimated (fast-simplification's quadric decimation) to
     _decimation_target's count, and how far it moved (the Hausdorff distance, sampled); a coarser one is

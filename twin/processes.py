@@ -15,7 +15,9 @@ import contextlib
 import ctypes
 import multiprocessing
 import os
+import pickle
 import signal
+import subprocess
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -125,3 +127,82 @@ def worker_pool(
         stop_workers(pool)
         raise
     pool.shutdown(wait=True)
+
+
+KILL_GRACE_S = 2.0
+"""How long a killed worker is waited for to be reaped (SIGKILL is not delayed by the work it does)."""
+
+
+def run_killable(fn: Callable[..., Any], *args: Any, started: Callable[[], None] | None = None) -> Any:
+    """fn(*args) in a child Python process that this one kills (SIGKILL) the moment it is interrupted.
+
+    For C code that never returns to Python while it works (gmsh's meshing, a quadric decimation): in
+    this process a Ctrl-C or SIGTERM would wait for it, minutes on a hostile input. Here the parent
+    waits on a pipe, so KeyboardInterrupt (Ctrl-C, or SIGTERM via sigterm_as_interrupt) is raised at
+    once; the child is then killed and reaped before it propagates, and dies with the parent if that is
+    killed outright (PR_SET_PDEATHSIG). The child is `python -m twin.processes`, not a multiprocessing
+    spawn, which would re-run a caller's script that lacks an `if __name__ == "__main__"` guard; it runs
+    in a session of its own, so a terminal's Ctrl-C reaches only the parent, which ends it. fn and args
+    must pickle (fn a module-level function); fn's exception is raised here as it was; what fn prints
+    goes to stderr. `started` is called once the child exists (a progress line: from then on an
+    interruption finds it and kills it)."""
+    payload = pickle.dumps((os.getpid(), fn, args), protocol=pickle.HIGHEST_PROTOCOL)
+    child = subprocess.Popen(
+        [sys.executable, "-m", "twin.processes"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        start_new_session=True,
+    )
+    try:
+        assert child.stdin is not None and child.stdout is not None
+        if started is not None:
+            started()
+        try:
+            child.stdin.write(payload)
+            child.stdin.close()
+        except BrokenPipeError:  # the child died at once: its status says so below
+            pass
+        reply = child.stdout.read()
+        child.wait()
+    finally:
+        if child.returncode is None:
+            with contextlib.suppress(OSError):
+                child.kill()
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.wait(KILL_GRACE_S)
+        for stream in (child.stdin, child.stdout):
+            with contextlib.suppress(OSError, AttributeError):
+                stream.close()  # type: ignore[union-attr]
+    if child.returncode != 0 or not reply:
+        raise RuntimeError(f"the worker running {fn.__name__} died (exit status {child.returncode})")
+    ok, value = pickle.loads(reply)  # this process's own child, over its own pipe
+    if not ok:
+        raise value
+    return value
+
+
+def _killable_child() -> None:
+    """`python -m twin.processes`: run_killable's child. Reads (parent pid, fn, args) pickled on stdin,
+    writes (ok, result or exception) pickled on stdout; anything fn prints goes to stderr."""
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and kills this process
+    reply = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)  # stdout (Python's and C's) to stderr: only the reply goes down the pipe
+    sys.stdout = sys.stderr
+    parent_pid, fn, args = pickle.load(sys.stdin.buffer)  # written by the parent
+    if os.getppid() != parent_pid:  # the parent died before the death signal was armed
+        os._exit(1)
+    try:
+        result = (True, fn(*args))
+    except BaseException as exc:  # handed to the parent, which raises it
+        result = (False, exc)
+    try:
+        data = pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL)
+    except Exception as exc:  # an unpicklable result or exception: its words still reach the parent
+        data = pickle.dumps((False, RuntimeError(f"{type(result[1]).__name__}: {result[1]} ({exc})")))
+    reply.write(data)
+    reply.close()
+
+
+if __name__ == "__main__":
+    _killable_child()

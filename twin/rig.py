@@ -64,7 +64,7 @@ def hand_stream_spec(rate_hz: float, velocity_unit: str) -> StreamSpec:
         rate_hz=rate_hz,
         description=(
             "BH8 feedback, motors F1, F2, F3, S (raw) and eqs. 1-3 conversion; "
-            "t_s: when the reading was taken (on hardware: when its feedback cycle was sent)"
+            "t_s: when the reading was taken (on hardware: when the feedback request it answers was sent)"
         ),
         fields={
             "position_counts": FieldSpec(unit="counts", shape=(4,), dtype="int32", kind="raw"),
@@ -485,10 +485,14 @@ class Rig:
                 log_contour(reading.t_s, "predicted", predicted)
         command = controller(reading)
         if command is not None:
-            applied = self.backend.hand.command(self.safety.check(command))
+            checked = self.safety.check(command)
+            # stamped as it goes out, not after: on hardware command() waits for the hand's
+            # acknowledgement, a round trip a loaded host stretches (the sim's clock stands still here)
+            sent_s = self.backend.clock.now()
+            applied = self.backend.hand.command(checked)
             self._record(
                 "command",
-                self.backend.clock.now(),  # sent on delivery, one latency after the sample
+                sent_s,  # on delivery: on hardware at once, in the sim one latency after the sample
                 {
                     "position_counts": applied.position_counts,
                     "max_velocity_counts_s": applied.max_velocity_counts_s,
@@ -497,7 +501,7 @@ class Rig:
             )
             log_command = getattr(self.viewer, "log_command", None)
             if log_command is not None:
-                log_command(self.backend.clock.now(), applied.position_counts, controller.phase)
+                log_command(sent_s, applied.position_counts, controller.phase)
         if self.viewer is not None:
             log_hand = getattr(self.viewer, "log_hand", None)
             if log_hand is not None:

@@ -175,8 +175,7 @@ class BH8SerialHand(Hand):
         """One RealTime feedback cycle (with a servo update if no command came since the last read)."""
         self._require_connection()
         self._idled = False
-        t_s = self.clock.now()
-        control = None if self._commanded_since_read else self._servo(t_s)
+        control = None if self._commanded_since_read else self._servo(self.clock.now())
         self._commanded_since_read = False
         last: Exception | None = None
         for _ in range(self.watchdog_cycles):  # each attempt: (re-enter LOOP if needed,) one cycle
@@ -184,6 +183,9 @@ class BH8SerialHand(Hand):
                 if self._resync_needed or self.bh.realtime is None:
                     self.bh.recover_realtime(self.realtime)
                     self._resync_needed = False
+                # stamped as the request that is answered goes out (after any re-entry into LOOP):
+                # the hand samples on its arrival, one request's wire time later
+                t_s = self.clock.now()
                 feedback = self.bh.cycle(control)
                 break
             except RECOVERABLE as exc:  # a PortLostError or an ERR reply stops at once

@@ -390,9 +390,12 @@ def reference_mesh(foam: FoamParams, edge_top_m: float, edge_far_m: float) -> An
     """The FEM's tetrahedral mesh of `foam` in the palm frame (resting on the palm at its placement):
     `edge_top_m` within 12 mm of its top and of its bottom (the palm's contact), `edge_far_m` elsewhere."""
     from twin.sim.scene import PALM_SURFACE_Z_M
-    from twin.sim.tetmesh import TetMesh, _decimate, _extract_tets, _foam_gmsh, load_surface
+    from twin.sim.tetmesh import TetMesh, _extract_tets, _foam_gmsh, decimated_surface, load_surface
 
     x, y, z = foam.size_m
+    if foam.shape == "mesh":  # decimated before gmsh's session: in a worker a Ctrl-C ends at once
+        scan = load_surface(Path(foam.mesh_file), foam.mesh_scale_m)
+        surface = decimated_surface(scan, edge_top_m, f"mesh file '{foam.mesh_file}'")
     with _foam_gmsh() as gmsh:
         occ = gmsh.model.occ
         if foam.shape == "block":
@@ -404,8 +407,6 @@ def reference_mesh(foam: FoamParams, edge_top_m: float, edge_far_m: float) -> An
             tag = occ.addSphere(0, 0, 0, x / 2)
             occ.dilate([(3, tag)], 0, 0, 0, 1.0, y / x, z / x)
         else:
-            scan = load_surface(Path(foam.mesh_file), foam.mesh_scale_m)
-            surface = _decimate(scan, edge_top_m, f"mesh file '{foam.mesh_file}'")[0]
             _add_surface_volume(gmsh, surface, remesh=surface is scan)
         if foam.shape != "mesh":
             occ.synchronize()

@@ -369,6 +369,80 @@ def test_self_intersecting_file_is_refused_in_one_line(tmp_path: Path, capfd) ->
     assert out == "" and err == ""
 
 
+def test_a_vertex_pushed_through_the_far_side_is_refused_before_meshing(tmp_path: Path) -> None:
+    """The top pole pulled down through the bottom: a closed, manifold surface whose spike crosses the
+    bottom cap (issue 37 item 9). gmsh fills it without a word (74 cm^3 for a 77 cm^3 surface); the
+    self-intersection check refuses it first, in one line."""
+    points_mm, triangles = _ellipsoid_mm(25, 25, 30)
+    points_mm[np.argmax(points_mm[:, 2]), 2] = -40.0
+    path = _write_binary_stl(tmp_path / "spike.stl", points_mm, triangles)
+    with pytest.raises(
+        ConfigError, match=r"self-intersecting \([0-9]+ pairs of its triangles cross\)"
+    ) as raised:
+        file_mesh(path, 0.010)
+    assert "\n" not in str(raised.value) and str(path) in str(raised.value)
+
+
+def test_inconsistently_oriented_file_is_refused_in_one_line(tmp_path: Path) -> None:
+    points_mm, triangles = _ellipsoid_mm(30, 25, 35)
+    flipped = triangles.copy()
+    flipped[[10, 300]] = flipped[[10, 300]][:, [0, 2, 1]]  # two faces wound the other way
+    path = _write_binary_stl(tmp_path / "mixed.stl", points_mm, flipped)
+    with pytest.raises(ConfigError, match=r"not consistently oriented \(6 edges run the same way") as raised:
+        file_mesh(path, 0.010)
+    assert "\n" not in str(raised.value)
+
+
+def test_an_inside_out_file_is_turned_over_and_meshed_as_the_same_volume(tmp_path: Path) -> None:
+    points_mm, triangles = _ellipsoid_mm(30, 25, 35)
+    outward = file_mesh(_write_binary_stl(tmp_path / "out.stl", points_mm, triangles), 0.010)
+    inward = file_mesh(_write_binary_stl(tmp_path / "in.stl", points_mm, triangles[:, [0, 2, 1]]), 0.010)
+    _assert_valid_volume_mesh(inward)
+    assert inward.volume_m3 == pytest.approx(outward.volume_m3, rel=1e-9)
+    assert (
+        load_surface(tmp_path / "in.stl").triangles.tolist()
+        == load_surface(tmp_path / "out.stl").triangles.tolist()
+    )
+
+
+def test_tetrahedra_that_do_not_fill_the_surfaces_volume_are_refused(tmp_path: Path) -> None:
+    """The volume check against the surface's own (divergence theorem): a mesh of another region fails."""
+    points_mm, triangles = _ellipsoid_mm(30, 25, 35)
+    surface = load_surface(_write_binary_stl(tmp_path / "e.stl", points_mm, triangles))
+    mesh = file_mesh(tmp_path / "e.stl", 0.010)
+    tetmesh._check_volume(mesh, surface, "e", remeshed=True)  # -3 %: chords across the curved surface
+    with pytest.raises(ConfigError, match=r"the tetrahedra fill .* cm\^3 but the surface encloses"):
+        tetmesh._check_volume(mesh, surface, "e", remeshed=False)  # within 1 % when meshed as it is
+    bigger = tetmesh.Surface(surface.points_m * 1.1, surface.triangles)
+    with pytest.raises(ConfigError, match=r"\(-2[0-9]\.[0-9] %, at most \+-20 %\)"):
+        tetmesh._check_volume(mesh, bigger, "e", remeshed=True)
+
+
+def test_a_file_over_the_triangle_budget_is_refused_before_it_is_welded(tmp_path: Path, monkeypatch) -> None:
+    points_mm, triangles = _ellipsoid_mm(30, 25, 35)
+    monkeypatch.setattr(tetmesh, "MAX_FILE_TRIANGLES", 1000)
+    monkeypatch.setattr(tetmesh, "_weld", lambda *a: pytest.fail("welded a file over the budget"))
+    for writer in (_write_binary_stl, _write_obj):  # the binary STL by its header, the OBJ once parsed
+        path = writer(
+            tmp_path / f"big.{'stl' if writer is _write_binary_stl else 'obj'}", points_mm, triangles
+        )
+        with pytest.raises(ConfigError, match=rf"{len(triangles):,} triangles, more than the 1,000 a foam"):
+            load_surface(path)
+
+
+def test_a_mesh_foam_reads_its_file_once(tmp_path: Path, monkeypatch) -> None:
+    """The object, its mesh and its calibration key all come from one read of the file."""
+    from twin import api
+
+    path = _write_binary_stl(tmp_path / "egg.stl", *_ellipsoid_mm(30, 25, 35))
+    reads = []
+    read = tetmesh._read_triangles
+    monkeypatch.setattr(tetmesh, "_read_triangles", lambda *a: reads.append(a) or read(*a))
+    tetmesh._load_surface_cached.cache_clear()
+    foam = api.foam("block", mesh=path)
+    assert foam.shape == "mesh" and len(reads) == 1
+
+
 # ------------------------------------------------------------------------------------------- MuJoCo
 
 FLEX_OPTION = '<option timestep="0.002" integrator="discrete" solver="CG" tolerance="1e-6" iterations="200"/>'

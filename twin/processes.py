@@ -174,7 +174,10 @@ def run_killable(fn: Callable[..., Any], *args: Any, started: Callable[[], None]
             with contextlib.suppress(OSError, AttributeError):
                 stream.close()  # type: ignore[union-attr]
     if child.returncode != 0 or not reply:
-        raise RuntimeError(f"the worker running {fn.__name__} died (exit status {child.returncode})")
+        raise WorkerLostError(
+            f"the worker process running {fn.__name__} ended abruptly (exit status {child.returncode}: "
+            "killed, or out of memory)"
+        )
     ok, value = pickle.loads(reply)  # this process's own child, over its own pipe
     if not ok:
         raise value

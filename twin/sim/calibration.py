@@ -587,6 +587,12 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
     k, rounds = k0, []
     for _ in range(MAX_FIT_ROUNDS):
         force = bench_force_n(bench, tips, k)
+        if not (force > 0).all():  # no contact at some depth: nothing to fit (and no log of zero)
+            raise ConfigError(
+                f"foam '{foam.name}': the fingertips' bench read no force from the flex at "
+                f"{' / '.join(f'{f:.2f}' for f in force)} N for 2 / 4 / 6 mm (MuJoCo found no contact "
+                "where the FEM did): it cannot be calibrated"
+            )
         ratio = float(np.exp(np.mean(np.log(target / force))))
         rounds.append({"k": k, "force_n": [round(float(f), 4) for f in force]})
         k *= ratio

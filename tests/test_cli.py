@@ -68,6 +68,14 @@ def test_run_compress_end_to_end_then_info_and_rrd(tmp_path: Path):
     assert np.allclose(values, recorded["position_counts"][:, :3])
 
 
+def test_python_dash_m_twin_is_the_twin_command():
+    """`python -m twin` (what a user tries first) runs the same command as `python -m twin.cli`."""
+    argv = [sys.executable, "-m", "twin", "objects", "--json"]
+    result = subprocess.run(argv, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout) == json.loads(twin("objects", "--json").stdout)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("fidelity", ["fast", "faithful"])
 @pytest.mark.parametrize("name", sorted(LIBRARY))

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.procfs import child_pids
+
 TWIN = [sys.executable, "-m", "twin.cli"]
 
 
@@ -46,20 +48,6 @@ def _uv_egg_stl(path: Path, segments: int = 1000, rings: int = 502) -> Path:
     return path
 
 
-def _children(pid: int) -> set[int]:
-    """The processes whose parent is `pid` (Linux /proc)."""
-    found = set()
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found.add(int(entry.name))
-    return found
-
-
 def _alive(pid: int) -> bool:
     try:
         state = (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -85,7 +73,7 @@ def test_an_interrupt_while_a_huge_scan_is_meshed_ends_the_command_in_one_line(t
     try:
         first = lines.get(timeout=120)  # the progress line, printed once the meshing worker exists
         assert "1,000,000 triangles, decimating" in first, first
-        workers = _children(proc.pid)
+        workers = child_pids(proc.pid)
         assert workers, "no meshing worker"
         proc.send_signal(sig)
         proc.wait(timeout=60)  # a hang guard, not a timing

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from experiments.compress import CompressProfile, run_compress
+from tests.procfs import child_pids
 from tests.twin.identify.conftest import SPHERE_YOUNG_PA
 from tests.twin.sim.test_foam_volumetric import _bumpy_sphere_stl
 from twin.cli import main
@@ -378,14 +379,6 @@ def test_the_power_law_through_too_few_or_far_like_grasps_is_nan_or_finite_never
     assert math.isnan(weighted_power_law(log_e, log_s, alone, float(log_s[4]))[0])
 
 
-def _children(pid: int) -> list[int]:
-    """The process's children, from /proc (Linux)."""
-    try:
-        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
-    except OSError:
-        return []
-
-
 def test_a_worker_killed_mid_estimate_is_one_line_not_a_traceback(sphere_run, tmp_path):
     """The OOM killer (here SIGKILL) taking one of the twin's simulation workers: `twin identify` ends in
     one line naming what happened and a non-zero status, and leaves no worker behind."""
@@ -401,7 +394,7 @@ def test_a_worker_killed_mid_estimate_is_one_line_not_a_traceback(sphere_run, tm
     try:
         deadline, worker = time.monotonic() + 300, None
         while worker is None and proc.poll() is None and time.monotonic() < deadline:
-            for child in _children(proc.pid):
+            for child in child_pids(proc.pid):
                 try:
                     if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
                         worker = child
@@ -415,4 +408,4 @@ def test_a_worker_killed_mid_estimate_is_one_line_not_a_traceback(sphere_run, tm
         proc.kill()
     assert proc.returncode not in (0, None)
     assert err.count("\n") == 1 and err.startswith("twin: error: a worker process ended abruptly"), err
-    assert not [c for c in _children(proc.pid)]
+    assert not child_pids(proc.pid)

@@ -186,6 +186,8 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
         if node is None:  # the second node starts from the first's k: one round fewer
             node = calibrate(at, progress=progress or _stderr_line, k0=nodes[-1]["k"] if nodes else 1.0)
             store(at, node)
+        if node.get("uncalibrated"):  # the bench could not hold it: cached, so it is not tried again
+            return Scale(1.0, "uncalibrated", _summary(node) | {"why": node["uncalibrated"]})
         nodes.append(node)
     (nu0, k0), (nu1, k1) = ((n["foam"]["poisson"], n["k"]) for n in nodes)
     k = float(k0 + (k1 - k0) * (foam.poisson - nu0) / (nu1 - nu0))
@@ -207,7 +209,7 @@ def _trusted(scale: Scale, residual: list[float]) -> Scale:
 
 def _summary(entry: dict[str, Any]) -> dict[str, Any]:
     return {
-        "residual": entry["residual"],
+        "residual": entry.get("residual"),
         "fem_dofs": entry["fem"]["dofs"],
         "fem_last_change": entry["fem"]["last_change"],
         "date": entry["provenance"]["date"],
@@ -529,8 +531,16 @@ def bench_model(
 def bench_force_n(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> np.ndarray:
     """MuJoCo's force on the tips at DEPTHS_M from first touch: settle, then ramp and hold each depth
     (the mean over the last third of each hold)."""
+    return _bench(foam, tips, modulus_scale)[0]
+
+
+def _bench(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> tuple[np.ndarray, float]:
+    """bench_force_n's forces, and how far (m) the foam's centre moved across the palm meanwhile: a
+    round-bottomed object may topple off the tips' line, where the FEM holds its base."""
     model = bench_model(foam, tips, modulus_scale)
     data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start_m = data.flexvert_xpos.mean(axis=0)
     dt = model.opt.timestep
     for _ in range(round(SETTLE_S / dt)):
         mujoco.mj_step(model, data)
@@ -563,7 +573,8 @@ def bench_force_n(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -
                 samples.append(-total)  # the foam pushes the tips up
         forces.append(float(np.mean(samples)))
         previous = depth
-    return np.array(forces)
+    moved_m = float(np.linalg.norm((data.flexvert_xpos.mean(axis=0) - start_m)[:2]))
+    return np.array(forces), moved_m
 
 
 def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.0) -> dict[str, Any]:
@@ -586,13 +597,14 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
     say(f"FEM: {' / '.join(f'{f:.2f}' for f in target)} N at 2 / 4 / 6 mm; fitting the flex...")
     k, rounds = k0, []
     for _ in range(MAX_FIT_ROUNDS):
-        force = bench_force_n(bench, tips, k)
+        force, moved_m = _bench(bench, tips, k)
         if not (force > 0).all():  # no contact at some depth: nothing to fit (and no log of zero)
-            raise ConfigError(
-                f"foam '{foam.name}': the fingertips' bench read no force from the flex at "
-                f"{' / '.join(f'{f:.2f}' for f in force)} N for 2 / 4 / 6 mm (MuJoCo found no contact "
-                "where the FEM did): it cannot be calibrated"
-            )
+            why = (f"the bench read {' / '.join(f'{f:.2f}' for f in force)} N at 2 / 4 / 6 mm where the "
+                   f"FEM, which holds the base, read {' / '.join(f'{f:.2f}' for f in target)} N: the "
+                   f"object moved {1e3 * moved_m:.0f} mm across the palm (it toppled or rolled) and "
+                   "cannot be calibrated resting on it: k = 1")  # fmt: skip
+            say(f"foam '{foam.name}': {why}")
+            return _entry(foam, bench, t0, 1.0, target, force, None, rounds, fem_info) | {"uncalibrated": why}
         ratio = float(np.exp(np.mean(np.log(target / force))))
         rounds.append({"k": k, "force_n": [round(float(f), 4) for f in force]})
         k *= ratio
@@ -601,6 +613,21 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
     residual = force / target - 1.0
     if not (math.isfinite(k) and k > 0):
         raise ConfigError(f"foam '{foam.name}': the flex's force could not be fitted to the FEM's (k = {k})")
+    return _entry(foam, bench, t0, k, target, force, residual, rounds, fem_info)
+
+
+def _entry(
+    foam: FoamParams,
+    bench: FoamParams,
+    t0: float,
+    k: float,
+    target: np.ndarray,
+    force: np.ndarray,
+    residual: np.ndarray | None,
+    rounds: list[dict[str, Any]],
+    fem_info: dict[str, Any],
+) -> dict[str, Any]:
+    """What a calibration stores: k, the load, both forces, the fit's rounds and the provenance."""
     return {
         "k": round(k, 5),
         "foam": {
@@ -611,7 +638,7 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
         "load": "the three distal links (bh8.xml collision geoms), level, pressed 2 / 4 / 6 mm into the top",
         "fem_force_n": [round(float(f), 4) for f in target],
         "twin_force_n": [round(float(f), 4) for f in force],
-        "residual": [round(float(r), 4) for r in residual],
+        "residual": None if residual is None else [round(float(r), 4) for r in residual],
         "reference_young_pa": REFERENCE_YOUNG_PA,
         "fit_rounds": rounds,
         "fem": fem_info,

@@ -134,3 +134,28 @@ def _box_stl(path, size_mm):
     triangles = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
     meshio.write(path, meshio.Mesh(points, [("triangle", np.array(triangles))]), binary=True)
     return path
+
+
+def test_an_object_that_topples_in_the_bench_is_left_uncalibrated_with_the_reason_and_not_tried_again(
+    tmp_path, monkeypatch
+):
+    """A tall egg stood on its end falls over on the palm before the level fingertips reach it (the FEM
+    holds its base; the bench cannot): k = 1 with what the bench measured, cached like a calibration, so
+    `twin run` and every identification simulation compose it (the hidden draw of 2042 stopped on one)."""
+    from twin.sim.example_shapes import write_closed_surface
+
+    monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "cache"))
+    surface = write_closed_surface(tmp_path / "egg.stl", (29.5, 33.0, 39.5), egg=0.12, rings=24, segments=48)
+    foam = mesh_object(surface, LIBRARY["block"])
+    lines: list[str] = []
+    scale = calibration.scale_of(foam, progress=lines.append)
+    assert scale.k == 1.0 and scale.source == "uncalibrated"
+    moved_mm = float(re.search(r"moved (\d+) mm", scale.detail["why"]).group(1))
+    assert moved_mm > 10  # it left the tips' line: not a bench that merely missed
+    assert "toppled" in lines[-1]  # the user is told, beside the progress lines
+    (stored,) = calibration.cache_dir().glob("*.json")  # the first node stops it: one entry
+    assert json.loads(stored.read_text())["uncalibrated"] == scale.detail["why"]
+    lines.clear()
+    assert calibration.scale_of(foam, progress=lines.append).detail["why"] == scale.detail["why"]
+    assert lines == []  # read back, not tried again
+    build_model(foam)  # and the scene composes

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-DRAW_SEED = 2041
+DRAW_SEED = 2042
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
 588 %) and the centred bracket (5.7 %, 34.5 %); its worst runs were then studied to build the grasp-matched
@@ -55,8 +55,11 @@ Scored on 2040 with noise seeds from 22000: 19 numbers, median 1.7 %, max 15.0 %
 12.4 %, coverage 79 % (11 of 14); 16 intervals alone (13 hold the truth). Both calibrations covered too
 little on the draw after them, so the scale went back to 1 (benchmarks/interval_calibration.py scores
 each draw at both). The next method, and the scale of 1 itself on a draw it was not chosen on, must be
-scored on a seed of its own (2042 on). Seeds 3001-3002 are benchmarks/identifiability.py's draws."""
-FIRST_NOISE_SEED = 24000
+scored on a seed of its own (2042 on). 2042, with noise seeds from 26000, scores the twin on MuJoCo 4.0
+with the foam calibrated against the FEM (issue 36); its first attempt stopped at a tall egg the
+calibration bench could not hold (now k = 1, with the reason), before any estimate was looked at. The
+next method must be scored on 2043 on. Seeds 3001-3002 are benchmarks/identifiability.py's draws."""
+FIRST_NOISE_SEED = 26000
 PER_SHAPE = 8
 CANDIDATES = 24
 """Draws per shape: the first PER_SHAPE the hand holds are the hidden cases (some tall meshes topple or
@@ -261,14 +264,20 @@ def run(quick: bool = False) -> dict:
         scratch = Path(os.environ.get("TWIN_BENCH_RUNS") or scratch_name)
         scratch.mkdir(parents=True, exist_ok=True)
         candidates = draw_cases(2 if quick else CANDIDATES, scratch)
-        with ProcessPoolExecutor(2) as pool:
-            runs = list(pool.map(make_run, [(c, str(scratch)) for c in candidates]))
-        cases, dropped = [], []
-        for case, run_dir in zip(candidates, runs, strict=True):
-            case["run"] = run_dir
-            chosen = sum(c["shape"] == case["shape"] for c in cases)
-            if chosen < per_shape:
-                (cases if held(run_dir) else dropped).append(case)
+        cases, dropped, made = [], [], 0
+        with ProcessPoolExecutor(2) as pool:  # each shape's draws in order, two at a time, until enough held
+            for shape in SHAPES:
+                queue = [c for c in candidates if c["shape"] == shape]
+                while queue and sum(c["shape"] == shape for c in cases) < per_shape:
+                    batch, queue = queue[:2], queue[2:]
+                    for case, run_dir in zip(
+                        batch, pool.map(make_run, [(c, str(scratch)) for c in batch]), strict=True
+                    ):
+                        made += 1
+                        case["run"] = run_dir
+                        if sum(c["shape"] == shape for c in cases) < per_shape:
+                            (cases if held(run_dir) else dropped).append(case)
+                print(f"  {shape}: {made} runs made so far", file=sys.stderr, flush=True)
         # Robustness: the first block and sphere described 1 mm larger; two cases under another profile.
         robust = []
         for shape in ("block", "sphere"):
@@ -315,7 +324,7 @@ def run(quick: bool = False) -> dict:
                 flush=True,
             )
         emulated = [] if quick else [_emulated_run(name, scratch) for name in EMULATED]
-    return {"rows": rows, "emulated": emulated, "drawn": len(candidates), "quick": quick}
+    return {"rows": rows, "emulated": emulated, "drawn": made, "quick": quick}
 
 
 def _summary(rows: list[dict]) -> dict:

@@ -115,12 +115,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     check_writable(args.out or args.run_dir / "identify")  # every input checked; before minutes of computing
     from twin.identify.identify import identify_run
     from twin.identify.report import FigureProcess, write_results
+    from twin.sim.modulus import ImpreciseEstimateError
 
     ident = identify_run(args.run_dir, args.free, args.model)  # eq. 4: quick, and it fails early
-    estimate = _estimate_modulus(args, description)
-    ident.material = estimate.to_json()
+    out = args.out or args.run_dir / "identify"
+    try:
+        estimate = _estimate_modulus(args, description)
+    except ImpreciseEstimateError as exc:  # the interval alone, and why: written down, then the one line
+        ident.material = exc.estimate.to_json() | {"number_given": False, "why": str(exc)}
+        with FigureProcess() as figure_process:
+            write_results(ident, out, figure_process)
+        raise ImpreciseEstimateError(f"{exc} (the interval is in {out})", exc.estimate) from None
+    ident.material = estimate.to_json() | {"number_given": True}
     with FigureProcess() as figure_process:
-        paths = write_results(ident, args.out or args.run_dir / "identify", figure_process)
+        paths = write_results(ident, out, figure_process)
     if args.json:
         print(paths["results"].read_text(), end="")
         return 0

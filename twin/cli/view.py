@@ -35,18 +35,10 @@ def view_files(run_dir: Path, blueprint_path: Path) -> list[str]:
     blueprint_path."""
     from twin.session import RRD_NAME
     from twin.viz.blueprint import kind_of_run, run_blueprint
-    from twin.viz.rerun_log import read_rrd_blueprint
+    from twin.viz.rerun_log import look_target_of
 
     rrd = run_dir / RRD_NAME
-    eye = next(
-        (
-            c["EyeControls3D:look_target"][0]
-            for p, c in read_rrd_blueprint(rrd).items()
-            if p.endswith("/EyeControls3D") and "EyeControls3D:look_target" in c
-        ),
-        None,
-    )
-    run_blueprint(kind_of_run(run_dir, eye)).save(APPLICATION_ID, blueprint_path)
+    run_blueprint(kind_of_run(run_dir, look_target_of(rrd))).save(APPLICATION_ID, blueprint_path)
     return [str(rrd), *sorted(str(p) for p in run_dir.glob("*/*.rrd")), str(blueprint_path)]
 
 

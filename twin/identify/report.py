@@ -165,15 +165,52 @@ def _figure_worker(conn: Connection) -> None:
     os._exit(0)  # the PNG is closed; skip tearing matplotlib down, which the caller would wait for
 
 
+def result_markdown(ident: Identification) -> str:
+    """The result as a reader wants it first: E and its interval (or the interval alone and why), the
+    squeeze it came from, and eq. 4 per finger (secant stiffness k_s, the reaction model's R^2)."""
+    lines = [f"# {ident.run_path.name}: identification", ""]
+    m = ident.material or {}
+    if m.get("ci95_pa"):
+        low, high = (v / 1e3 for v in m["ci95_pa"])
+        if m.get("number_given", True):
+            lines.append(f"**E = {m['young_pa'] / 1e3:.1f} kPa** (95 % interval {low:.1f}-{high:.1f} kPa)")
+        else:
+            lines += [f"**E within {low:.1f}-{high:.1f} kPa** (95 %): no number given", "", m.get("why", "")]
+        if m.get("twin_young_pa"):
+            lines.append(f"\nthe twin's E (the truth of a sim run): {m['twin_young_pa'] / 1e3:.1f} kPa")
+        lines += ["", f"from the squeeze stiffness {m.get('squeeze_stiffness_n_m', float('nan')):.0f} N/m"]
+    lines += ["", "| finger | k_s (N/m) | reaction model | R^2 |", "|---|---|---|---|"]
+    for f in ident.fingers:
+        lines.append(f"| F{f.finger} | {f.secant_n_m:.0f} | {f.fit.model} | {f.fit.r2:.2f} |")
+    lines += [f"\nnote: {note}" for note in ident.notes]
+    return "\n".join(lines) + "\n"
+
+
 def log_rerun(ident: Identification, path: Path) -> Path:
-    """The figure's time series under plots/identify/f<k>/..., on the run's timeline and recording id."""
+    """The result as a document and the figure's time series under plots/identify/f<k>/..., on the run's
+    timeline and recording id, with the run's blueprint and an identification tab: opened beside run.rrd
+    in `rerun` (after it), the result shows without `twin view`."""
+    import dataclasses
+
     import rerun as rr
 
-    from twin.viz.blueprint import FINGER_RGB, IDENTIFY_QUANTITIES
-    from twin.viz.rerun_log import TIMELINE
+    from twin.session import RRD_NAME
+    from twin.viz.blueprint import (
+        FINGER_RGB,
+        IDENTIFY_QUANTITIES,
+        IDENTIFY_RESULT_ENTITY,
+        kind_of_run,
+        run_blueprint,
+    )
+    from twin.viz.rerun_log import TIMELINE, look_target_of
 
     rec = rr.RecordingStream("barrett_twin", recording_id=ident.run_path.name)
     rec.save(path)
+    eye = look_target_of(ident.run_path / RRD_NAME)
+    kind = dataclasses.replace(kind_of_run(ident.run_path, eye), identify=True)
+    rec.send_blueprint(run_blueprint(kind), make_active=True, make_default=True)
+    markdown = rr.TextDocument(result_markdown(ident), media_type=rr.MediaType.MARKDOWN)
+    rec.log(IDENTIFY_RESULT_ENTITY, markdown, static=True)
     names = {**IDENTIFY_QUANTITIES, "indentation_mm": "indentation (mm)"}
     for f in ident.fingers:
         times = rr.TimeColumn(TIMELINE, duration=f.t_s)

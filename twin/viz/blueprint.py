@@ -52,6 +52,8 @@ IDENTIFY_QUANTITIES = {
     "model_n": "R model",
 }
 """/plots/identify/f<k>/<quantity> (twin.identify.report) and the name each series gets here."""
+IDENTIFY_RESULT_ENTITY = "identify/result"
+"""Where `twin identify` writes its result as a Markdown document (twin.identify.report)."""
 
 
 def lighter(rgb: Sequence[int], amount: float = 0.5) -> tuple[int, int, int]:
@@ -305,7 +307,10 @@ def run_blueprint(kind: RunKind, *, extra: Sequence[str] = ()) -> rrb.Blueprint:
     if extra:  # plotted entities no view of this kind names
         tabs.append(rrb.Vertical(_plot("other series", list(extra)), name="other"))
     if kind.identify:
-        tabs.insert(0, rrb.Vertical(*identify_views(), name="identification"))
+        result = rrb.TextDocumentView(name="identification: the result", origin=f"/{IDENTIFY_RESULT_ENTITY}")
+        tabs.insert(
+            0, rrb.Vertical(result, *identify_views(), name="identification", row_shares=[2, 2, 2, 2, 2])
+        )
     log = rrb.TextLogView(name="log: phases and warnings", origin=f"/{LOG_ENTITY}")
     right = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), log, row_shares=[5, 1])
     return rrb.Blueprint(

@@ -1111,6 +1111,22 @@ def read_rrd_blueprint(rrd_path: Path | str) -> dict[str, dict[str, object]]:
     return out
 
 
+def look_target_of(rrd_path: Path | str) -> list[float] | None:
+    """The 3-D view's look target a run's own blueprint chose (its object's centre); None if the
+    recording has none or cannot be read (the blueprint's default eye then)."""
+    path = Path(rrd_path)
+    if not path.is_file():
+        return None
+    return next(
+        (
+            c["EyeControls3D:look_target"][0]
+            for p, c in read_rrd_blueprint(path).items()
+            if p.endswith("/EyeControls3D") and "EyeControls3D:look_target" in c
+        ),
+        None,
+    )
+
+
 def _rows(
     rrd_path: Path | str,
     entity_path: str,

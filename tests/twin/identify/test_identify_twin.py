@@ -166,3 +166,35 @@ def test_the_rerun_file_names_and_colours_its_series_on_its_own(ident, tmp_path)
     assert names["/plots/identify/f1/tactile_n"] == ["F1 R tactile (eq. 6)"]
     assert names["/plots/identify/f3/indentation_mm"] == ["F3 indentation (mm)"]
     assert len(names) == 4 * len(ident.fingers)
+
+
+def test_the_rerun_file_carries_the_result_and_a_blueprint_that_shows_it(sphere_identified):
+    """`rerun run.rrd identify/identify.rrd`, without `twin view`: identify.rrd holds the result as a
+    Markdown document (E, its interval, k_s and R^2 per finger) and the run's blueprint with an
+    identification tab whose first view shows that document."""
+    from rerun.chunk import RrdReader
+
+    from twin.viz.rerun_log import read_rrd_blueprint
+
+    code, printed, out = sphere_identified
+    assert code == 0
+    rrd = out / "identify.rrd"
+    documents = [
+        chunk.to_record_batch().column("TextDocument:text").to_pylist()[0]
+        for chunk in RrdReader(rrd).stream().filter(is_static=True)
+        if chunk.entity_path == "/identify/result"
+    ]
+    assert len(documents) == 1
+    m = printed["material"]
+    low, high = (v / 1e3 for v in m["ci95_pa"])
+    assert f"E = {m['young_pa'] / 1e3:.1f} kPa" in documents[0][0]
+    assert f"{low:.1f}-{high:.1f} kPa" in documents[0][0]
+    for f in printed["fingers"]:
+        assert f"| F{f['finger']} | {f['secant_stiffness_n_m']:.0f} |" in documents[0][0]
+    views = {
+        columns.get("ViewBlueprint:class_identifier", [None])[0]: columns.get("ViewBlueprint:space_origin")
+        for columns in read_rrd_blueprint(rrd).values()
+        if "ViewBlueprint:class_identifier" in columns
+    }
+    assert views["TextDocument"] == ["/identify/result"]
+    assert "3D" in views and "TimeSeries" in views  # the run's own views beside it

@@ -35,8 +35,8 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from twin.experiments.compress import PHASES, CompressController
 
-from experiments.compress import PHASES, CompressController
 from twin import units
 from twin.interface.devices import HandCommand, HandReading
 from twin.rig import Rig

@@ -75,7 +75,8 @@ def expected_beyond(sigma_log: np.ndarray, bound: float = BOUND, runs: int = RUN
 def _simulate(args: tuple) -> tuple[float, np.ndarray] | None:
     """S and the fingertip shares of the procedure on a twin holding `foam` (None where it drops it)."""
     foam, profile = args
-    from experiments.compress import run_compress
+    from twin.experiments.compress import run_compress
+
     from twin.sim.backend import SimBackend
     from twin.sim.modulus import SIM_SEED, EstimateError, run_stiffness
 

@@ -137,7 +137,8 @@ def _foam(case: dict):
 def make_run(args: tuple[dict, str]) -> str:
     """One hidden case's compress run (its directory)."""
     case, out_dir = args
-    from experiments.compress import CompressProfile, run_compress
+    from twin.experiments.compress import CompressProfile, run_compress
+
     from twin.sim.backend import SimBackend
 
     foam = _foam(case)

@@ -25,7 +25,7 @@ CASES = [
 ]
 _PROBE = """
 import json, sys, time
-from experiments.compress import PHASES, CompressController
+from twin.experiments.compress import PHASES, CompressController
 from twin.rig import Rig
 from twin.sim.backend import SimBackend
 from twin.sim.foam import LIBRARY

@@ -10,7 +10,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from experiments.compress import PHASES, CompressController
+from twin.experiments.compress import PHASES, CompressController
+
 from twin.rig import Rig
 from twin.sim.backend import SimBackend
 from twin.sim.foam import DEFAULT_OBJECT, FIDELITIES, LIBRARY

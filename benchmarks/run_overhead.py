@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import mujoco
+from twin.experiments.compress import PHASES, CompressController
 
-from experiments.compress import PHASES, CompressController
 from twin.sim.foam import DEFAULT_OBJECT, LIBRARY
 
 TARGET_RATIO = 1.3

@@ -12,8 +12,8 @@ import subprocess
 import sys
 import time
 
-from hardware.bh262.driver import BH262, HandTimeoutError, PortSettings
-from hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig
+from twin.hardware.bh262.driver import BH262, HandTimeoutError, PortSettings
+from twin.hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig
 
 BAUD = 38400
 CONFIGS = {

@@ -18,8 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from experiments.sweep import TrajectoryController, draw_trajectories, sweep
+from twin.experiments.sweep import TrajectoryController, draw_trajectories, sweep
 
 if TYPE_CHECKING:
     from twin.shape.dataset import ShapeData

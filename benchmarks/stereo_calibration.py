@@ -1,6 +1,6 @@
 """Accuracy of `twin calibrate cameras` on the twin: the recovered calibration against the ground truth.
 
-Each seed draws new chessboard poses and new camera noise (`experiments.calibrate_cameras.calibrate_sim`,
+Each seed draws new chessboard poses and new camera noise (`twin.experiments.calibrate_cameras.calibrate_sim`,
 the procedure the CLI runs); errors are the recovered stereo-to-hand transform (hand_from_left), the
 left-to-right transform and the intrinsics at 320x240 against what the twin knows. Target: the
 stereo-to-hand transform within 1 mm and 0.5 deg.
@@ -14,8 +14,7 @@ import time
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
-
-from experiments.calibrate_cameras import DEFAULT_VIEWS, calibrate_sim
+from twin.experiments.calibrate_cameras import DEFAULT_VIEWS, calibrate_sim
 
 SEEDS = 10
 KEYS = (

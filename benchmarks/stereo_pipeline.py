@@ -21,8 +21,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import cv2
 import numpy as np
+from twin.experiments.compress import PHASES, CompressController
 
-from experiments.compress import PHASES, CompressController
 from twin.rig import Rig, summarize_surface_scores
 from twin.sim.backend import SimBackend
 from twin.sim.cameras import PLACEMENTS

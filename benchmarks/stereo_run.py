@@ -15,7 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from experiments.compress import PHASES, CompressController
+from twin.experiments.compress import PHASES, CompressController
+
 from twin.rig import Rig
 from twin.session import RRD_NAME
 from twin.sim.backend import SimBackend

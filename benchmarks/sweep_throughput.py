@@ -12,7 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from experiments.sweep import draw_trajectories, sweep
+from twin.experiments.sweep import draw_trajectories, sweep
 
 OBJECT = "block"
 TRAJECTORIES = 4

@@ -31,8 +31,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from twin.experiments.compress import CompressController, CompressProfile
 
-from experiments.compress import CompressController, CompressProfile
 from twin.interface.errors import ConfigError
 
 if TYPE_CHECKING:

@@ -11,10 +11,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hardware.bh262.hand import BH8SerialHand
-from hardware.cameras.driver import StereoCapture
-from hardware.pps.driver import PPSTactile
-from hardware.rig_config import STEREO_CALIBRATION, RigConfig
+from twin.hardware.bh262.hand import BH8SerialHand
+from twin.hardware.cameras.driver import StereoCapture
+from twin.hardware.pps.driver import PPSTactile
+from twin.hardware.rig_config import STEREO_CALIBRATION, RigConfig
+
 from twin.interface.backend import Backend, Clock
 from twin.interface.devices import Hand, HandCommand, HandReading
 from twin.interface.errors import DeviceError, DeviceNotConfiguredError

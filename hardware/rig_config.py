@@ -41,8 +41,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hardware.bh262.driver import PortSettings
-from hardware.cameras.driver import BACKENDS, StereoCaptureConfig
+from twin.hardware.bh262.driver import PortSettings
+from twin.hardware.cameras.driver import BACKENDS, StereoCaptureConfig
+
 from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
 from twin.interface.tactile_spec import TactileConfig

@@ -14,13 +14,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-
-from hardware.bh262.emulator import HandEmulator, make_hand_emulator
-from hardware.bh262.firmware import RealTimeTwin
-from hardware.cameras.emulator import CameraEmulator
-from hardware.pps.emulator import FaultPlan as TactileFaultPlan
-from hardware.pps.emulator import TactileEmulator
-from hardware.rig_config import rig_toml
+from twin.hardware.bh262.emulator import HandEmulator, make_hand_emulator
+from twin.hardware.bh262.firmware import RealTimeTwin
+from twin.hardware.cameras.emulator import CameraEmulator
+from twin.hardware.pps.emulator import FaultPlan as TactileFaultPlan
+from twin.hardware.pps.emulator import TactileEmulator
+from twin.hardware.rig_config import rig_toml
 
 
 def twin_tactile_source(twin: RealTimeTwin) -> Callable[[], np.ndarray]:

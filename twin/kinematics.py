@@ -22,9 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from twin import units
+from twin.assets import HAND_XML
 from twin.tactile.layout import LAYOUT
 
-HAND_XML = Path(__file__).resolve().parents[1] / "models" / "barrett_mjcf" / "bh8.xml"
 HAND_FRAME_BODY = "palm"
 """The hand frame of every 3-D quantity (cameras, clouds, contacts): the palm body's frame."""
 BREAKAWAY_LOAD_NM = 0.08

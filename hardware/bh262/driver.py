@@ -2,7 +2,7 @@
 
 Opened with `serial.serial_for_url`, so a device path (/dev/ttyUSB0, a pty), `socket://host:port`,
 `loop://` and `bh8emu://` (an in-process emulator on the twin) all work. Replies are read up to the
-`=> ` prompt and parsed by hardware.bh262.protocol; `ERR n` becomes HandCommandError naming its flags.
+`=> ` prompt and parsed by twin.hardware.bh262.protocol; `ERR n` becomes HandCommandError naming its flags.
 This module never imports the simulator.
 """
 
@@ -14,8 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import serial
-
-from hardware.bh262.protocol import (
+from twin.hardware.bh262.protocol import (
     ACK,
     CR,
     EXIT_REALTIME,
@@ -35,6 +34,7 @@ from hardware.bh262.protocol import (
     format_command,
     parse_reply,
 )
+
 from twin.interface.errors import ConfigError, DeviceError
 
 try:
@@ -119,7 +119,7 @@ class BH262:
 
     def open(self) -> None:
         """Open the port and find the prompt; switch the rate if the settings ask for it."""
-        import hardware.bh262.urlhandler  # noqa: F401  (registers bh8emu://)
+        import twin.hardware.bh262.urlhandler  # noqa: F401  (registers bh8emu://)
 
         try:
             self._port = serial.serial_for_url(

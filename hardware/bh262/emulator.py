@@ -16,10 +16,9 @@ from collections import deque
 from collections.abc import Callable
 
 import numpy as np
-
-from hardware.bh262.firmware import QUIET_AFTER_S, QUIET_BEFORE_S, Firmware, RealTimeTwin
-from hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
-from hardware.emulation import (
+from twin.hardware.bh262.firmware import QUIET_AFTER_S, QUIET_BEFORE_S, Firmware, RealTimeTwin
+from twin.hardware.bh262.protocol import EXIT_REALTIME, PROMPT, ErrorFlag, WireOptions
+from twin.hardware.emulation import (
     IDLE_TIMEOUT_S,
     NO_ARG,
     Fault,
@@ -456,7 +455,7 @@ def make_hand_emulator(
 ) -> HandEmulator:
     """A hand emulator on a fresh twin holding `object_name` from the foam library (None: no object).
 
-    `stereo`: build the twin's scene with the two cameras (for hardware.cameras.emulator)."""
+    `stereo`: build the twin's scene with the two cameras (for twin.hardware.cameras.emulator)."""
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object
 

@@ -31,9 +31,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from hardware.bh262.properties import ALIASES, GLOBAL_PROPERTIES, MOTOR_PROPERTIES, Property
-from hardware.bh262.protocol import (
+from twin.hardware.bh262.properties import ALIASES, GLOBAL_PROPERTIES, MOTOR_PROPERTIES, Property
+from twin.hardware.bh262.protocol import (
     ACK,
     CONTROL_FIELDS,
     FEEDBACK_FIELDS,
@@ -41,6 +40,7 @@ from hardware.bh262.protocol import (
     ErrorFlag,
     WireOptions,
 )
+
 from twin import units
 from twin.interface.devices import HandReading
 from twin.sim.backend import SimBackend

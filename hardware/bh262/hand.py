@@ -18,9 +18,9 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+from twin.hardware.bh262.driver import BH262, SUPPORTED_BAUD, HandTimeoutError, PortLostError, PortSettings
+from twin.hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig, ReplyFormatError
 
-from hardware.bh262.driver import BH262, SUPPORTED_BAUD, HandTimeoutError, PortLostError, PortSettings
-from hardware.bh262.protocol import FeedbackFormatError, RealTimeConfig, ReplyFormatError
 from twin import units
 from twin.interface.backend import Clock
 from twin.interface.devices import Hand, HandCommand, HandReading

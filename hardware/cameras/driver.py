@@ -201,7 +201,7 @@ class StereoCapture(StereoCamera):
     """Two cv2.VideoCapture sources read as one synchronised pair: grab both, then retrieve both."""
 
     def __init__(self, config: StereoCaptureConfig, clock: Clock) -> None:
-        """`clock` stamps each pair at grab time (the run clock, e.g. hardware.backend.WallClock)."""
+        """`clock` stamps each pair at grab time (the run clock, e.g. twin.hardware.backend.WallClock)."""
         super().__init__()
         self.config = config
         self.clock = clock

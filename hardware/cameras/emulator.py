@@ -53,7 +53,7 @@ from twin.interface.devices import StereoFrame
 from twin.interface.errors import ConfigError
 
 if TYPE_CHECKING:
-    from hardware.bh262.firmware import RealTimeTwin
+    from twin.hardware.bh262.firmware import RealTimeTwin
 
 SIDES = ("left", "right")
 BOUNDARY = "twinframe"

@@ -1,7 +1,7 @@
 """The PPS tactile pads behind the shared TactileArray interface: a streamed frame per scan, newest wins.
 
 The interface streams frames by itself (no request), so a background thread reads the port, feeds
-`hardware.pps.frame.FrameDecoder` and keeps the newest valid frame, stamped with the run clock when
+`twin.hardware.pps.frame.FrameDecoder` and keeps the newest valid frame, stamped with the run clock when
 it arrived; `read()` returns it at once. Lost frames are counted from gaps in the device's sequence
 numbers: a corrupted, truncated or dropped frame each leaves one. Bad frames are not added on top (that
 would count them twice, and noise that merely contains the sync makes one too). The port is opened with
@@ -18,8 +18,8 @@ import time
 from typing import Any
 
 import serial
+from twin.hardware.pps.frame import SEQUENCE_MODULO, Frame, FrameDecoder
 
-from hardware.pps.frame import SEQUENCE_MODULO, Frame, FrameDecoder
 from twin.interface.backend import Clock
 from twin.interface.devices import TactileArray, TactileReading
 from twin.interface.errors import ConfigError, DeviceError
@@ -59,7 +59,8 @@ class PPSTactile(TactileArray):
         connect_timeout_s: float = 2.0,
     ) -> None:
         """`url`: a device path or pyserial URL; `baud`: the interface's line rate (socket:// and ppsemu://
-        ignore it); `clock`: stamps each frame on arrival (the run clock, e.g. hardware.backend.WallClock)."""
+        ignore it); `clock`: stamps each frame on arrival (the run clock, e.g.
+        twin.hardware.backend.WallClock)."""
         super().__init__()
         if not timeout_s > 0 or not connect_timeout_s > 0:
             raise ConfigError("tactile timeout_s and connect_timeout_s must be > 0")
@@ -103,7 +104,7 @@ class PPSTactile(TactileArray):
     # --- life cycle -------------------------------------------------------------------------
 
     def _connect(self) -> None:
-        import hardware.pps.urlhandler  # noqa: F401  (registers ppsemu://)
+        import twin.hardware.pps.urlhandler  # noqa: F401  (registers ppsemu://)
 
         self._reset_state()
         try:
@@ -271,5 +272,5 @@ class PPSTactile(TactileArray):
             "baud": self.baud,
             "rate_hz": self.config.rate_hz,
             "timeout_s": self.timeout_s,
-            "frame_layout": "hardware.pps.frame (assumed; see its docstring)",
+            "frame_layout": "twin.hardware.pps.frame (assumed; see its docstring)",
         }

@@ -2,7 +2,7 @@
 
 The counts come from any `source() -> (162,) ints` (a synthetic pattern here; the twin's tactile
 skin can be plugged in later — it is called from the emulator's thread at every scan). Frames leave
-at line speed (10 bits per byte at the configured baud) and the layout is `hardware.pps.frame`'s.
+at line speed (10 bits per byte at the configured baud) and the layout is `twin.hardware.pps.frame`'s.
 Faults are injected by frame number (see `FaultPlan`) to prove the driver's recovery and clear errors.
 """
 
@@ -14,9 +14,9 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from twin.hardware.emulation import NO_ARG, Fault, FaultArg, Link, PortServer, parse_faults
+from twin.hardware.pps.frame import FRAME_SIZE, SEQUENCE_MODULO, encode_frame
 
-from hardware.emulation import NO_ARG, Fault, FaultArg, Link, PortServer, parse_faults
-from hardware.pps.frame import FRAME_SIZE, SEQUENCE_MODULO, encode_frame
 from twin.interface.devices import N_TAXELS, TAXEL_COUNT_MAX
 from twin.interface.errors import ConfigError
 

@@ -5,9 +5,9 @@ import math
 
 import numpy as np
 import pytest
+from twin.experiments.compress import run_compress
 
 from benchmarks import identifiability
-from experiments.compress import run_compress
 from twin.identify.identify import squeeze_stiffness
 from twin.identify.signals import load_signals
 from twin.sim.backend import SimBackend

@@ -8,9 +8,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from twin.hardware.rig_emulator import RigEmulator
 
 import twin.envs  # noqa: F401  (registers the ids)
-from hardware.rig_emulator import RigEmulator
 from twin import units
 from twin.envs.squeeze import OPEN_COUNTS
 from twin.safety import UnsafeCommandError

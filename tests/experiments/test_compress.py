@@ -5,8 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from twin.experiments.compress import CompressController, CompressProfile
 
-from experiments.compress import CompressController, CompressProfile
 from twin import units
 from twin.interface.devices import HandReading
 from twin.interface.errors import ConfigError
@@ -198,7 +198,8 @@ def test_the_touch_breaks_every_clutch_away_whatever_the_noise_seed(tmp_path, si
     seeds 140 and 141 ended in opposite states (a 20 % stiffer grip), at 65 mm and 15.5 kPa the
     mapping's seeds split. Touching at 12000 counts/s breaks every clutch away, and holding where
     contact is confirmed keeps them broken away through the compression."""
-    from experiments.compress import PHASES, run_compress
+    from twin.experiments.compress import PHASES, run_compress
+
     from twin.recording.reader import open_run
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object

@@ -5,8 +5,8 @@ import json
 
 import numpy as np
 import pytest
+from twin.experiments.sweep import TrajectoryController, draw_trajectories, read_index, sweep
 
-from experiments.sweep import TrajectoryController, draw_trajectories, read_index, sweep
 from twin.cli import main
 from twin.interface.errors import ConfigError
 from twin.recording.reader import Run

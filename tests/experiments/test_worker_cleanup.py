@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 
 import pytest
+from twin.experiments.compress import run_compress
 
-from experiments.compress import run_compress
 from twin.processes import sigterm_as_interrupt
 from twin.sim.backend import SimBackend
 from twin.sim.foam import get_object

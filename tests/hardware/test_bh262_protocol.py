@@ -6,8 +6,7 @@ import contextlib
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from hardware.bh262.protocol import (
+from twin.hardware.bh262.protocol import (
     ErrorFlag,
     Feedback,
     FeedbackFormatError,

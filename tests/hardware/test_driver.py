@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from twin.hardware.bh262.driver import BH262, HandTimeoutError, PortLostError, PortSettings
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.bh262.hand import DEFAULT_REALTIME
+from twin.hardware.bh262.protocol import ErrorFlag, HandCommandError, ProtocolError
 
-from hardware.bh262.driver import BH262, HandTimeoutError, PortLostError, PortSettings
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.bh262.hand import DEFAULT_REALTIME
-from hardware.bh262.protocol import ErrorFlag, HandCommandError, ProtocolError
 from twin.interface.errors import DeviceError
 
 
@@ -194,7 +194,7 @@ def test_fuzz_realtime_feedback_only_declared_errors(raw):
 
 @pytest.mark.parametrize("order", ["motor", "property"])
 def test_fget_order_is_an_option_both_sides_agree_on(order):
-    from hardware.bh262.protocol import WireOptions
+    from twin.hardware.bh262.protocol import WireOptions
 
     options = WireOptions(fget_order=order)
     with make_hand_emulator(None, options=options) as emulator:
@@ -209,7 +209,7 @@ def test_fget_order_is_an_option_both_sides_agree_on(order):
 
 
 def test_wire_options_refuse_unknown_choices():
-    from hardware.bh262.protocol import WireOptions
+    from twin.hardware.bh262.protocol import WireOptions
 
     for bad in ({"fget_order": "diagonal"}, {"velocity_unit_s": 0.5}, {"line_end": b"\n"}):
         with pytest.raises(ValueError):
@@ -218,8 +218,9 @@ def test_wire_options_refuse_unknown_choices():
 
 
 def test_a_session_leaves_the_hand_at_the_rate_the_next_one_expects():
-    from hardware.backend import WallClock
-    from hardware.bh262.hand import BH8SerialHand
+    from twin.hardware.backend import WallClock
+    from twin.hardware.bh262.hand import BH8SerialHand
+
     from twin.interface.hand_spec import HandConfig
 
     with make_hand_emulator(None) as emulator:
@@ -262,8 +263,9 @@ def test_a_vanished_pty_is_a_port_lost_error_not_a_termios_error():
     ],
 )
 def test_a_rate_the_wire_cannot_carry_is_refused_with_true_advice(switch_baud, rate_hz, advice, never):
-    from hardware.backend import WallClock
-    from hardware.bh262.hand import BH8SerialHand
+    from twin.hardware.backend import WallClock
+    from twin.hardware.bh262.hand import BH8SerialHand
+
     from twin.interface.errors import ConfigError
     from twin.interface.hand_spec import HandConfig
 

@@ -23,10 +23,16 @@ from collections.abc import Iterator
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from twin.hardware.bh262.emulator import (
+    MAX_DELAY_S,
+    MAX_LINE_BYTES,
+    FaultPlan,
+    HandEmulator,
+    make_hand_emulator,
+)
+from twin.hardware.bh262.protocol import KNOWN_FLAGS
+from twin.hardware.emulation import BUSY_REPLY, Link, PortServer
 
-from hardware.bh262.emulator import MAX_DELAY_S, MAX_LINE_BYTES, FaultPlan, HandEmulator, make_hand_emulator
-from hardware.bh262.protocol import KNOWN_FLAGS
-from hardware.emulation import BUSY_REPLY, Link, PortServer
 from twin.interface.errors import ConfigError
 
 PROMPT = b"=> "
@@ -347,7 +353,7 @@ def test_a_session_that_dies_is_reported_and_the_port_closes():
 _CHURN = textwrap.dedent(
     """
     import serial, time
-    import hardware.bh262.urlhandler  # registers bh8emu://
+    import twin.hardware.bh262.urlhandler  # registers bh8emu://
 
     for i in range(3):  # closed mid-motion, mid-reply, right after opening
         port = serial.serial_for_url("bh8emu://?object=none", timeout=5)

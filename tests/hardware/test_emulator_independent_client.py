@@ -1,6 +1,6 @@
 """The BH8-262 emulator against a client written only from the protocol summary bh262_protocol.md.
 
-Nothing here comes from `hardware.bh262` (no driver, codec or emulator class): the emulator runs as a
+Nothing here comes from `twin.hardware.bh262` (no driver, codec or emulator class): the emulator runs as a
 separate process through the real CLI (`twin emulate hand`), and this file talks raw bytes to it with
 pyserial. Expected bytes are the spec's own: echo, LF CR, result, LF CR, `=> ` (the spec's examples
 write LF CR; the manual's "CRLF" is the (?) item, so the examples are what is asserted). Items the

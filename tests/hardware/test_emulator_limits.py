@@ -8,11 +8,10 @@ import socket
 import time
 
 import pytest
-
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.cameras import emulator as camera_emulator
-from hardware.cameras.emulator import MAX_CONNECTIONS, CameraEmulator
-from hardware.emulation import BUSY_REPLY
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.cameras import emulator as camera_emulator
+from twin.hardware.cameras.emulator import MAX_CONNECTIONS, CameraEmulator
+from twin.hardware.emulation import BUSY_REPLY
 
 HANG_GUARD_S = 30.0
 

@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin.experiments.compress import PHASES, CompressController
+from twin.hardware.backend import HardwareBackend
+from twin.hardware.bh262.driver import SCHEDULING_MARGIN_S, PortSettings
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.rig_config import HandPortConfig, RigConfig
 
-from experiments.compress import PHASES, CompressController
-from hardware.backend import HardwareBackend
-from hardware.bh262.driver import SCHEDULING_MARGIN_S, PortSettings
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.rig_config import HandPortConfig, RigConfig
 from twin.recording import open_run
 from twin.session import run_experiment
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin.hardware.bh262.emulator import make_hand_emulator
 
-from hardware.bh262.emulator import make_hand_emulator
 from twin.compare import contact_windows_s, position_agreement, stream_mismatches
 from twin.recording import open_run
 

@@ -4,7 +4,7 @@ import os
 import time
 import tty
 
-from hardware.emulation import Link, PortServer
+from twin.hardware.emulation import Link, PortServer
 
 
 class _EndsAtOnce(PortServer):

@@ -6,9 +6,9 @@ import time
 import types
 
 import pytest
+from twin.hardware.bh262 import firmware
+from twin.hardware.bh262.firmware import RealTimeTwin
 
-from hardware.bh262 import firmware
-from hardware.bh262.firmware import RealTimeTwin
 from twin.sim.backend import SimBackend
 
 TICK_S = 1e-3

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from twin.hardware.backend import WallClock
+from twin.hardware.bh262.driver import PortSettings
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.bh262.hand import BH8SerialHand
 
-from hardware.backend import WallClock
-from hardware.bh262.driver import PortSettings
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.bh262.hand import BH8SerialHand
 from twin.interface.devices import HandCommand
 from twin.interface.hand_spec import HandConfig
 from twin.safety import SafetyLayer, SafetyLimits, UnsafeCommandError

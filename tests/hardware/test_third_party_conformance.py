@@ -29,8 +29,7 @@ import tty
 from collections.abc import Iterator
 
 import pytest
-
-from hardware.bh262.emulator import HandEmulator, make_hand_emulator
+from twin.hardware.bh262.emulator import HandEmulator, make_hand_emulator
 
 PROMPT = b"=> "
 LE = b"\n\r"

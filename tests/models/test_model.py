@@ -7,8 +7,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from twin.assets import HAND_XML, MODEL_DIR, SCENE_XML
 from twin.sim.foam import LIBRARY
-from twin.sim.scene import HAND_XML, MODEL_DIR, SCENE_XML, build_model
+from twin.sim.scene import build_model
 
 REQUIRED_FILES = ("bh8.xml", "scene.xml", "README.md", "LICENSE", "CHANGELOG.md")
 

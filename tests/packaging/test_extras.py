@@ -34,8 +34,8 @@ def test_a_rig_run_imports_no_sim_and_no_torch(tmp_path: Path):
     code = (
         "import twin\n"
         "from twin.session import run_experiment\n"
-        "from experiments.compress import CompressController\n"
-        "import hardware.bh262.hand, twin.viz.rerun_log\n"
+        "from twin.experiments.compress import CompressController\n"
+        "import twin.hardware.bh262.hand, twin.viz.rerun_log\n"
         "backend = twin.hardware_backend(hand='socket://127.0.0.1:9')\n"
         "print(type(backend).__name__, sorted(m for m in ('dm_control', 'torch') if sys.modules.get(m)))\n"
     )

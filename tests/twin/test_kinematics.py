@@ -3,8 +3,8 @@ against the twin's truth over real compress runs."""
 
 import numpy as np
 import pytest
+from twin.experiments.compress import CompressController, CompressProfile
 
-from experiments.compress import CompressController, CompressProfile
 from twin import units
 from twin.kinematics import ClutchObserver, HandKinematics, link_angles
 from twin.rig import Rig

@@ -5,11 +5,11 @@ import time
 
 import numpy as np
 import pytest
+from twin.experiments.compress import PHASES, CompressController, run_compress
+from twin.hardware.backend import HardwareBackend
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.rig_config import RigConfig, load_rig
 
-from experiments.compress import PHASES, CompressController, run_compress
-from hardware.backend import HardwareBackend
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.rig_config import RigConfig, load_rig
 from twin.interface.devices import HandCommand, HandReading
 from twin.interface.errors import ConfigError, DeviceError
 from twin.interface.hand_spec import HandConfig

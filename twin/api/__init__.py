@@ -24,9 +24,9 @@ from twin.session import RunOutcome, default_run_dir
 from twin.validation import DAY_S, MIN_DURATION_S, SEED_LIMIT, check_number
 
 if TYPE_CHECKING:
-    from experiments.compress import CompressProfile
-    from experiments.free_motion import FreeMotionProfile
-    from hardware.rig_config import RigConfig
+    from twin.experiments.compress import CompressProfile
+    from twin.experiments.free_motion import FreeMotionProfile
+    from twin.hardware.rig_config import RigConfig
     from twin.shape.model import ShapeModel
     from twin.sim.foam import FoamParams
 
@@ -131,8 +131,8 @@ def hardware_backend(
     file's (`/dev/ttyUSB0`, `socket://host:port`, `bh8emu://` for an in-process emulated hand).
 
     The cameras a rig configures stay closed unless `cameras` is set."""
-    from hardware.backend import HardwareBackend
-    from hardware.rig_config import RigConfig, load_rig
+    from twin.hardware.backend import HardwareBackend
+    from twin.hardware.rig_config import RigConfig, load_rig
 
     config = rig if isinstance(rig, RigConfig) else RigConfig() if rig is None else load_rig(Path(rig))
     if hand is not None:
@@ -275,7 +275,7 @@ def compress(
     """The paper's procedure (§6.2): grasp, balance the grasp forces, then compress periodically
     (`twin run compress`). `stereo_box`: the object's box on the first frame where the backend has
     cameras (default: the sim's own, or rig.toml's bbox); `shape_model`: see `load_shape_model`."""
-    from experiments.compress import run_compress
+    from twin.experiments.compress import run_compress
 
     duration_s = _check_duration(duration_s)
     what = _object_name(backend, object_name)
@@ -303,7 +303,7 @@ def free(
 ) -> RunOutcome:
     """The empty hand swings its fingers (`twin run free`): the run `twin identify --free` takes for
     eq. 4's hand terms."""
-    from experiments.free_motion import run_free_motion
+    from twin.experiments.free_motion import run_free_motion
 
     duration_s = _check_duration(duration_s)
     return run_free_motion(

@@ -46,7 +46,7 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.force:
         raise ConfigError(f"--out {args.out}: exists; choose another file or overwrite it with --force")
     check_writable(args.out.parent)  # before the calibration is computed
-    from experiments.calibrate_cameras import calibrate_sim, calibrate_views
+    from twin.experiments.calibrate_cameras import calibrate_sim, calibrate_views
 
     outcome = calibrate_views(args.views) if args.views is not None else calibrate_sim(seed=args.seed or 0)
     for line in outcome.summary():

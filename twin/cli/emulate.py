@@ -39,7 +39,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     """`twin emulate hand|rig`: serve the twin-backed emulators until Ctrl-C (or --duration)."""
     import time
 
-    from hardware.bh262.driver import SUPPORTED_BAUD
+    from twin.hardware.bh262.driver import SUPPORTED_BAUD
 
     if args.baud not in SUPPORTED_BAUD:
         raise ConfigError(f"--baud {args.baud}: not one of {', '.join(map(str, SUPPORTED_BAUD))}")
@@ -52,9 +52,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         raise ConfigError(f"--port {where}: the rig serves PORT, PORT+1 and PORT+2: at most tcp:65533")
     if args.rig_file is not None:
         check_writable(args.rig_file.parent, "--rig-file")  # before the twin starts
-    from hardware.bh262.emulator import make_hand_emulator
-    from hardware.rig_config import rig_toml
-    from hardware.rig_emulator import RigEmulator
+    from twin.hardware.bh262.emulator import make_hand_emulator
+    from twin.hardware.rig_config import rig_toml
+    from twin.hardware.rig_emulator import RigEmulator
     from twin.sim.foam import get_object
 
     object_name = None if args.object == "none" else args.object

@@ -51,7 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """`twin sweep`: run (or resume) a dataset of trajectories, with a progress bar."""
-    from experiments.sweep import check_ray_address, draw_trajectories, sweep, trajectory_from_run
+    from twin.experiments.sweep import check_ray_address, draw_trajectories, sweep, trajectory_from_run
     from twin.sim.foam import get_object
 
     check_writable(args.out)  # before a trajectory is simulated

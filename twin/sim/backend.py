@@ -9,6 +9,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from twin.assets import HAND_XML
 from twin.interface.backend import Backend, Clock
 from twin.interface.hand_spec import HandConfig
 from twin.interface.stereo_spec import StereoConfig
@@ -17,7 +18,7 @@ from twin.kinematics import HAND_FRAME_BODY
 from twin.sim.cameras import LEFT_CAMERA, CameraPlacement, SimStereo, camera_pose_cv
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
-from twin.sim.scene import HAND_XML, build_model
+from twin.sim.scene import build_model
 from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth, score_against
 from twin.sim.tactile import SimTactile, SimTactileSensor, contact_frame_forces
 from twin.sim.world import DEFAULT_HINT, SimWorld

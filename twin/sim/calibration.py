@@ -249,7 +249,8 @@ def _hand_around(foam: FoamParams) -> tuple[mujoco.MjModel, mujoco.MjData]:
     on the palm, to keep the inner links out of it."""
     from dm_control import mjcf
 
-    from twin.sim.scene import HAND_XML, PALM_SURFACE_Z_M
+    from twin.assets import HAND_XML
+    from twin.sim.scene import PALM_SURFACE_Z_M
 
     root = mjcf.from_path(str(HAND_XML))
     x, y, z = foam.size_m

@@ -63,7 +63,7 @@ from twin.sim.foam import FoamParams
 from twin.validation import check_run_metadata
 
 if TYPE_CHECKING:
-    from experiments.compress import CompressProfile
+    from twin.experiments.compress import CompressProfile
 
 RANGE_PA = (5e3, 5e5)
 """Moduli the method answers for: flexible polyurethane foams (soft ~10 kPa to firm ~300 kPa) and a
@@ -422,7 +422,7 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, np.ndarray, str]:
     on a twin holding `foam` (a temporary run, removed after); NaNs and the reason where the twin's own
     grasp of it fails (the object slips out, the grasp never settles): a missing point, not a verdict
     on the run."""
-    from experiments.compress import run_compress
+    from twin.experiments.compress import run_compress
     from twin.sim.backend import SimBackend
 
     scratch = Path(tempfile.mkdtemp(prefix="twin-modulus-"))
@@ -482,7 +482,7 @@ def _failed(why: str, reasons: list[str]) -> EstimateError:
 
 
 def _profile(run: Run) -> CompressProfile:
-    from experiments.compress import CompressProfile
+    from twin.experiments.compress import CompressProfile
 
     experiment = run.metadata.get("experiment") or {}
     given = experiment.get("profile")

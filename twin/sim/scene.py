@@ -8,15 +8,13 @@ from typing import TYPE_CHECKING
 import mujoco
 from dm_control import mjcf
 
+from twin.assets import SCENE_XML
 from twin.interface.errors import ConfigError
 from twin.sim.foam import FLEXCOMP_TYPE, FoamParams
 
 if TYPE_CHECKING:
     from twin.sim.tetmesh import TetMesh
 
-MODEL_DIR = Path(__file__).resolve().parents[2] / "models" / "barrett_mjcf"
-SCENE_XML = MODEL_DIR / "scene.xml"
-HAND_XML = MODEL_DIR / "bh8.xml"
 PALM_SURFACE_Z_M = 0.075
 """Top of the palm collision cylinder in the palm frame (bh8.xml)."""
 FOAM_NAME = "foam"

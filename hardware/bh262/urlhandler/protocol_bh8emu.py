@@ -6,7 +6,7 @@ byte-level behaviour (baud pacing, faults) as `twin emulate hand` on a pty or TC
 
 from __future__ import annotations
 
-from hardware.emulation import EmulatorPort, PortServer
+from twin.hardware.emulation import EmulatorPort, PortServer
 
 
 class Serial(EmulatorPort):
@@ -16,7 +16,7 @@ class Serial(EmulatorPort):
     parameters = frozenset({"object", "baud", "faults", "seed"})
 
     def _make_emulator(self, query: dict[str, str]) -> PortServer:
-        from hardware.bh262.emulator import make_hand_emulator
+        from twin.hardware.bh262.emulator import make_hand_emulator
 
         obj = query.get("object", "block")
         return make_hand_emulator(

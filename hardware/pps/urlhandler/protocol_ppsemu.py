@@ -2,12 +2,12 @@
 
 Handy for notebooks and tests: the driver reads the emulator over a socket pair with the same
 byte-level behaviour (scan rate, baud pacing, faults) as the emulator on a pty or TCP port. NAME is one
-of hardware.pps.emulator.SOURCES (default `ramp`).
+of twin.hardware.pps.emulator.SOURCES (default `ramp`).
 """
 
 from __future__ import annotations
 
-from hardware.emulation import EmulatorPort, PortServer
+from twin.hardware.emulation import EmulatorPort, PortServer
 
 
 class Serial(EmulatorPort):
@@ -17,7 +17,7 @@ class Serial(EmulatorPort):
     parameters = frozenset({"source", "rate", "baud", "faults", "first_sequence"})
 
     def _make_emulator(self, query: dict[str, str]) -> PortServer:
-        from hardware.pps.emulator import DEFAULT_BAUD, make_tactile_emulator
+        from twin.hardware.pps.emulator import DEFAULT_BAUD, make_tactile_emulator
 
         return make_tactile_emulator(
             query.get("source", "ramp"),

@@ -7,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from hardware.backend import WallClock
-from hardware.cameras import fake
-from hardware.cameras.driver import (
+from twin.hardware.backend import WallClock
+from twin.hardware.cameras import fake
+from twin.hardware.cameras.driver import (
     CameraMissingError,
     CameraTimeoutError,
     StereoCapture,
     StereoCaptureConfig,
     available_backends,
 )
+
 from twin.interface.errors import ConfigError, DeviceError, DeviceNotConnectedError
 
 TIMEOUT_S = 0.3

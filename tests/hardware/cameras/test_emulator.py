@@ -7,13 +7,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin.hardware.backend import HardwareBackend, WallClock
+from twin.hardware.bh262.emulator import make_hand_emulator
+from twin.hardware.cameras.driver import (
+    CameraMissingError,
+    CameraTimeoutError,
+    StereoCapture,
+    StereoCaptureConfig,
+)
+from twin.hardware.cameras.emulator import CameraEmulator
+from twin.hardware.rig_config import STEREO_CALIBRATION, load_rig, rig_toml
+from twin.hardware.rig_emulator import RigEmulator
 
-from hardware.backend import HardwareBackend, WallClock
-from hardware.bh262.emulator import make_hand_emulator
-from hardware.cameras.driver import CameraMissingError, CameraTimeoutError, StereoCapture, StereoCaptureConfig
-from hardware.cameras.emulator import CameraEmulator
-from hardware.rig_config import STEREO_CALIBRATION, load_rig, rig_toml
-from hardware.rig_emulator import RigEmulator
 from twin.interface.devices import StereoFrame
 from twin.interface.errors import ConfigError
 from twin.sim.backend import SimBackend

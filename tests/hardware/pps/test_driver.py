@@ -6,16 +6,16 @@ import time
 
 import numpy as np
 import pytest
-
-from hardware.backend import WallClock
-from hardware.pps.driver import PPSTactile, TactilePortLostError, TactileTimeoutError
-from hardware.pps.emulator import (
+from twin.hardware.backend import WallClock
+from twin.hardware.pps.driver import PPSTactile, TactilePortLostError, TactileTimeoutError
+from twin.hardware.pps.emulator import (
     FaultPlan,
     TactileEmulator,
     constant_source,
     make_tactile_emulator,
     ramp_source,
 )
+
 from twin.interface.devices import N_TAXELS, TactileReading
 from twin.interface.errors import ConfigError, DeviceError, DeviceNotConnectedError
 from twin.interface.tactile_spec import TactileConfig

@@ -6,10 +6,10 @@ import socket
 import time
 
 import pytest
+from twin.hardware.emulation import BUSY_REPLY
+from twin.hardware.pps.emulator import FaultPlan, make_tactile_emulator
+from twin.hardware.pps.frame import FRAME_SIZE, SYNC
 
-from hardware.emulation import BUSY_REPLY
-from hardware.pps.emulator import FaultPlan, make_tactile_emulator
-from hardware.pps.frame import FRAME_SIZE, SYNC
 from twin.interface.errors import ConfigError
 
 HANG_GUARD_S = 10.0

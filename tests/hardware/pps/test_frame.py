@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-
-from hardware.pps.frame import (
+from twin.hardware.pps.frame import (
     FRAME_SIZE,
     SYNC,
     Frame,
@@ -18,6 +17,7 @@ from hardware.pps.frame import (
     decode_frame,
     encode_frame,
 )
+
 from twin.interface.devices import N_TAXELS
 
 FUZZ = settings(

@@ -5,9 +5,9 @@ import io
 import json
 
 import pytest
+from twin.experiments.compress import run_compress
+from twin.experiments.free_motion import run_free_motion
 
-from experiments.compress import run_compress
-from experiments.free_motion import run_free_motion
 from twin.cli import main
 from twin.sim.backend import SimBackend
 from twin.sim.foam import get_object

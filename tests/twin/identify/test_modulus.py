@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin.experiments.compress import CompressProfile, run_compress
 
-from experiments.compress import CompressProfile, run_compress
 from tests.procfs import child_pids
 from tests.twin.identify.conftest import SPHERE_YOUNG_PA
 from tests.twin.sim.test_foam_volumetric import _bumpy_sphere_stl

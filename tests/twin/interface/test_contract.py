@@ -3,8 +3,8 @@ connect, no reading without a connection, readings shaped, typed and bounded as 
 
 import numpy as np
 import pytest
+from twin.hardware.backend import HardwareBackend
 
-from hardware.backend import HardwareBackend
 from twin.interface.backend import Backend
 from twin.interface.devices import HandCommand, HandReading
 from twin.interface.errors import DeviceNotConfiguredError, DeviceNotConnectedError

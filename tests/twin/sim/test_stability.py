@@ -73,7 +73,7 @@ def test_a_run_on_a_diverging_object_ends_failed_with_one_line(tmp_path: Path, o
     flags, a script can still ask): the run ends, marked failed with the same one line."""
     out = _outcome(
         f"""
-        from experiments.compress import run_compress
+        from twin.experiments.compress import run_compress
         from twin.sim.backend import SimBackend
         from twin.sim.foam import get_object
 

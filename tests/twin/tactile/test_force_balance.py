@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin.experiments.compress import PHASES, CompressController, CompressProfile
 
-from experiments.compress import PHASES, CompressController, CompressProfile
 from twin.recording import open_run
 from twin.rig import Rig
 from twin.session import run_experiment

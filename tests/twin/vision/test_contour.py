@@ -8,8 +8,8 @@ import itertools
 import cv2
 import numpy as np
 import pytest
+from twin.experiments.sweep import TrajectoryController, draw_trajectories
 
-from experiments.sweep import TrajectoryController, draw_trajectories
 from twin.sim.backend import SimBackend
 from twin.sim.cameras import LEFT_CAMERA, PLACEMENTS
 from twin.sim.foam import get_object

@@ -13,13 +13,13 @@ import mujoco
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-
-from experiments.calibrate_cameras import (
+from twin.experiments.calibrate_cameras import (
     CalibrationOutcome,
     calibrate_from_images,
     render_sim_views,
     save_views,
 )
+
 from twin.sim.cameras import LEFT_CAMERA, PLACEMENTS, RIGHT_CAMERA
 from twin.sim.checkerboard import (
     CHESSBOARD_PATTERN,

@@ -115,7 +115,8 @@ def test_reconstruction_accuracy_against_the_twin_truth(camera_run: Path):
 @pytest.mark.slow
 def test_runs_with_cameras_are_deterministic_for_a_seed():
     """Frames render on their own thread and reconstruct on another; the result must not depend on it."""
-    from experiments.compress import CompressController
+    from twin.experiments.compress import CompressController
+
     from twin.rig import Rig
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object
@@ -166,7 +167,8 @@ def test_ctrl_c_keeps_the_frames_the_vision_worker_finished(tmp_path: Path):
 
 
 def test_hardware_cameras_without_a_box_are_refused_before_anything_is_written(tmp_path: Path):
-    from hardware.rig_config import rig_toml
+    from twin.hardware.rig_config import rig_toml
+
     from twin.sim.backend import SimBackend
 
     SimBackend(None, stereo=True).stereo.calibration().save(tmp_path / "stereo.json")

@@ -67,13 +67,38 @@ def hand_stream_spec(rate_hz: float, velocity_unit: str) -> StreamSpec:
             "t_s: when the reading was taken (on hardware: when the feedback request it answers was sent)"
         ),
         fields={
-            "position_counts": FieldSpec(unit="counts", shape=(4,), dtype="int32", kind="raw"),
-            "velocity_counts": FieldSpec(unit=velocity_unit, shape=(4,), dtype="int32", kind="raw"),
-            "strain_counts": FieldSpec(unit="counts", shape=(3,), dtype="int32", kind="raw"),
-            "position_rad": FieldSpec(unit="rad", shape=(4,), kind="physical"),
-            "velocity_rad_s": FieldSpec(unit="rad/s", shape=(4,), kind="physical"),
-            "torque_nm": FieldSpec(unit="N*m", shape=(3,), kind="physical"),
-            "force_kg": FieldSpec(unit="kg", shape=(3,), kind="physical"),
+            "position_counts": FieldSpec(
+                unit="counts",
+                shape=(4,),
+                dtype="int32",
+                kind="raw",
+                description="motor encoders F1, F2, F3, S",
+            ),
+            "velocity_counts": FieldSpec(
+                unit=velocity_unit,
+                shape=(4,),
+                dtype="int32",
+                kind="raw",
+                description="encoder counts per velocity sample time (the unit's time base), F1, F2, F3, S",
+            ),
+            "strain_counts": FieldSpec(
+                unit="counts", shape=(3,), dtype="int32", kind="raw", description="distal strain gauges F1-F3"
+            ),
+            "position_rad": FieldSpec(
+                unit="rad",
+                shape=(4,),
+                kind="physical",
+                description="F1-F3 as inner-link angle, S as spread angle (counts times the §3.1 scale)",
+            ),
+            "velocity_rad_s": FieldSpec(
+                unit="rad/s", shape=(4,), kind="physical", description="eq. 1: rate of position_rad"
+            ),
+            "torque_nm": FieldSpec(
+                unit="N*m", shape=(3,), kind="physical", description="eq. 2: distal-joint torque F1-F3"
+            ),
+            "force_kg": FieldSpec(
+                unit="kg", shape=(3,), kind="physical", description="eq. 3: fingertip force F1-F3"
+            ),
         },
     )
 
@@ -88,8 +113,12 @@ def command_stream_spec(rate_hz: float) -> StreamSpec:
             "t_s: when the set point was sent, in answer to the hand reading just before it"
         ),
         fields={
-            "position_counts": FieldSpec(unit="counts", shape=(4,), kind="command"),
-            "max_velocity_counts_s": FieldSpec(unit="counts/s", kind="command"),
+            "position_counts": FieldSpec(
+                unit="counts", shape=(4,), kind="command", description="set points F1, F2, F3, S"
+            ),
+            "max_velocity_counts_s": FieldSpec(
+                unit="counts/s", kind="command", description="speed limit of the move to the set points"
+            ),
             "phase": FieldSpec(
                 unit="1", dtype="int32", kind="status", description="index into metadata 'phases'"
             ),
@@ -104,12 +133,18 @@ def truth_stream_spec(rate_hz: float) -> StreamSpec:
         rate_hz=rate_hz,
         description="simulator ground truth at the hand's sample instants",
         fields={
-            "inner_rad": FieldSpec(unit="rad", shape=(3,), kind="truth"),
-            "outer_rad": FieldSpec(unit="rad", shape=(3,), kind="truth"),
-            "spread_rad": FieldSpec(unit="rad", kind="truth"),
-            "distal_torque_nm": FieldSpec(unit="N*m", shape=(3,), kind="truth"),
-            "broken_away": FieldSpec(unit="1", shape=(3,), dtype="bool", kind="truth"),
-            "tip_contact_force_n": FieldSpec(unit="N", shape=(3,), kind="truth"),
+            "inner_rad": FieldSpec(unit="rad", shape=(3,), kind="truth", description="inner joints F1-F3"),
+            "outer_rad": FieldSpec(unit="rad", shape=(3,), kind="truth", description="outer joints F1-F3"),
+            "spread_rad": FieldSpec(unit="rad", kind="truth", description="spread joint"),
+            "distal_torque_nm": FieldSpec(
+                unit="N*m", shape=(3,), kind="truth", description="distal-joint torque F1-F3"
+            ),
+            "broken_away": FieldSpec(
+                unit="1", shape=(3,), dtype="bool", kind="truth", description="clutch broken away F1-F3"
+            ),
+            "tip_contact_force_n": FieldSpec(
+                unit="N", shape=(3,), kind="truth", description="contact force on the fingertips F1-F3"
+            ),
         },
     )
 
@@ -125,14 +160,28 @@ def tactile_stream_spec(rate_hz: float) -> StreamSpec:
             "t_s: when the scan was taken (on hardware: when its frame arrived)"
         ),
         fields={
-            "counts": FieldSpec(unit="counts", shape=(N_TAXELS,), dtype="int32", kind="raw"),
+            "counts": FieldSpec(
+                unit="counts",
+                shape=(N_TAXELS,),
+                dtype="int32",
+                kind="raw",
+                description="15-bit taxel readings",
+            ),
             "sequence": FieldSpec(unit="1", dtype="int64", kind="status", description="device frame number"),
-            "dropped_frames": FieldSpec(unit="1", dtype="int64", kind="status"),
+            "dropped_frames": FieldSpec(
+                unit="1", dtype="int64", kind="status", description="frames the device dropped so far"
+            ),
             "pressure_kpa": FieldSpec(unit="kPa", shape=(N_TAXELS,), kind="physical", description="eq. 5"),
             "pad_force_n": FieldSpec(
                 unit="N", shape=(len(LAYOUT.pads),), kind="physical", description="eq. 6"
             ),
-            "active_taxels": FieldSpec(unit="1", shape=(len(LAYOUT.pads),), dtype="int32", kind="physical"),
+            "active_taxels": FieldSpec(
+                unit="1",
+                shape=(len(LAYOUT.pads),),
+                dtype="int32",
+                kind="physical",
+                description="pressed taxels per pad",
+            ),
         },
     )
 

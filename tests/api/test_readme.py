@@ -30,5 +30,5 @@ def test_the_readme_python_and_learning_examples_run(tmp_path: Path, monkeypatch
     exec(compile(_examples("Learning"), "README: Learning", "exec"), {})
     assert "(162,)" in capsys.readouterr().out
     info = json.loads((tmp_path / "datasets/squeeze/meta/info.json").read_text())
-    assert info["total_episodes"] == 2 and "observation.tactile" in info["features"]
+    assert info["total_episodes"] == 2 and "observation.environment_state" in info["features"]
     assert (tmp_path / "tables/squeeze/hand.parquet").is_file()

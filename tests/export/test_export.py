@@ -1,6 +1,6 @@
-"""`twin export`: recorded runs as a LeRobot v3.0 dataset and as plain Parquet, read back with pyarrow and
-OpenCV (and, where an interpreter with the `lerobot` package is named, with LeRobot's own dataset class)
-against the runs' own streams; bad input in one line."""
+"""`twin export --format lerobot`: recorded runs as a LeRobot v3.0 dataset, read back with pyarrow, OpenCV
+and PIL (and, where an interpreter with the `lerobot` package is named, with LeRobot's own code)
+against the runs' own streams; bad input in one line. The parquet tables: test_tables.py."""
 
 import json
 import os
@@ -11,26 +11,26 @@ import cv2
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from PIL import Image
 
 import twin
+from tests.export.conftest import OFF_GRID_S, write_off_grid_run
 from twin.cli import main
 from twin.export.frames import STATE_NAMES
 
 LEROBOT_PYTHON = os.environ.get("TWIN_LEROBOT_PYTHON")
 """An interpreter with `lerobot` installed: its pins (torch < 2.11, rerun-sdk < 0.27) conflict with this
 project's, so it lives in an environment of its own (docs/api.md says how one was made)."""
-
-
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("runs")
-    twin.compress(twin.sim_backend("block", seed=2, cameras=True), duration_s=1.5, out=root / "cam")
-    twin.compress(twin.sim_backend("soft_block", seed=3), duration_s=2, out=root / "plain")
-    return {"cam": root / "cam", "plain": root / "plain"}
+STATS = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
+"""What LeRobot 0.4's recorder keeps per feature, per episode and for the dataset."""
 
 
 def _column(table, name: str) -> np.ndarray:
     return np.array(table.column(name).to_pylist())
+
+
+def _episodes(out: Path) -> list[dict]:
+    return pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
 
 
 def test_lerobot_layout_holds_each_runs_state_action_tactile_and_frames(runs, tmp_path: Path, capsys):
@@ -40,11 +40,22 @@ def test_lerobot_layout_holds_each_runs_state_action_tactile_and_frames(runs, tm
     info = json.loads((out / "meta/info.json").read_text())
     assert info["codebase_version"] == "v3.0" and info["fps"] == 30
     assert info["features"]["observation.state"]["names"] == list(STATE_NAMES)
+    tactile = info["features"]["observation.environment_state"]
+    assert (
+        tactile["shape"] == [162]
+        and tactile["names"][0] == "f1_tip.r0c0"
+        and len(set(tactile["names"])) == 162
+    )
+    assert (
+        "observation.tactile" not in info["features"] and info["features"]["run_time_s"]["dtype"] == "float64"
+    )
     data = pq.read_table(out / "data/chunk-000/file-000.parquet")
-    episodes = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    episodes = _episodes(out)
     assert info["total_frames"] == len(data) == sum(e["length"] for e in episodes)
-    for e in episodes:
-        run = twin.open_run(e["source_run"])
+    for e, name in zip(episodes, ("cam", "plain"), strict=True):
+        assert e["source_run"] == name and e["source_held_frames"] == e["source_unused_readings"] == 0
+        run = twin.open_run(runs[name])
+        assert e["source_run_id"] == json.loads((runs[name] / "run.json").read_text())["run_id"]
         rows = slice(e["dataset_from_index"], e["dataset_to_index"])
         hand, command, tactile = run.stream("hand"), run.stream("command"), run.stream("tactile")
         state = _column(data, "observation.state")[rows]
@@ -53,8 +64,17 @@ def test_lerobot_layout_holds_each_runs_state_action_tactile_and_frames(runs, tm
         # the command answering reading k (recorded one latency after it, before reading k + 1), as float32
         assert np.array_equal(_column(data, "action")[rows], command["position_counts"].astype(np.float32))
         assert (command.t_s >= hand.t_s).all() and (command.t_s[:-1] < hand.t_s[1:]).all()
-        assert np.array_equal(_column(data, "observation.tactile")[rows], tactile["counts"])
+        assert np.array_equal(_column(data, "observation.environment_state")[rows], tactile["counts"])
         assert np.array_equal(_column(data, "episode_index")[rows], np.full(len(hand), e["episode_index"]))
+        # LeRobot's clock: frame_index / fps (float32); the run's own clock beside it, as recorded
+        frame_index = _column(data, "frame_index")[rows]
+        assert np.array_equal(frame_index, np.arange(len(hand)))
+        timestamp = np.asarray(data.column("timestamp").to_numpy())[rows]
+        assert timestamp.dtype == np.float32 and np.array_equal(
+            timestamp, (frame_index / 30).astype(np.float32)
+        )
+        assert np.array_equal(_column(data, "run_time_s")[rows], hand.t_s)
+        assert not np.array_equal(timestamp, (hand.t_s - hand.t_s[0]).astype(np.float32))  # sim: 2 ms steps
     tasks = pq.read_table(out / "meta/tasks.parquet")
     assert tasks.column("__index_level_0__").to_pylist()[0].startswith("compress: ")
 
@@ -69,19 +89,123 @@ def test_lerobot_layout_holds_each_runs_state_action_tactile_and_frames(runs, tm
     assert list(frame.shape) == info["features"]["observation.images.left"]["shape"] == [240, 320, 3]
 
 
-def test_parquet_tables_hold_every_stream_of_every_run(runs, tmp_path: Path):
-    out = tmp_path / "tables"
-    argv = ["export", str(runs["plain"]), str(runs["cam"]), "--format", "parquet", "--out", str(out)]
-    assert main(argv) == 0
-    hand = pq.read_table(out / "hand.parquet")
-    for episode, name in enumerate(("plain", "cam")):
-        recorded = twin.open_run(runs[name]).stream("hand")
-        mine = _column(hand, "episode_index") == episode
-        assert np.array_equal(_column(hand, "position_counts")[mine], recorded["position_counts"])
-        assert np.array_equal(_column(hand, "t_s")[mine], recorded.t_s)
-    stereo = pq.read_table(out / "stereo.parquet")
-    assert set(stereo.column("run").to_pylist()) == {"cam"}
-    assert json.loads((out / "runs.json").read_text())[1]["metadata"]["backend"] == "sim"
+def test_no_file_of_the_dataset_names_where_the_runs_were(runs, tmp_path: Path):
+    out = tmp_path / "ds"
+    assert main(["export", str(runs["cam"]), str(runs["plain"]), "--out", str(out)]) == 0
+    root = str(runs["cam"].parent)
+    files = [p for p in out.rglob("*") if p.is_file()]
+    assert len(files) == 5  # info, stats, tasks, episodes, data
+    for path in files:
+        data = path.read_bytes()
+        assert root.encode() not in data and str(tmp_path).encode() not in data, path
+
+
+def _episode_values(run: twin.recording.Run) -> dict[str, np.ndarray]:
+    hand = run.stream("hand")
+    state = np.concatenate([hand["position_counts"], hand["velocity_counts"], hand["strain_counts"]], axis=1)
+    return {
+        "observation.state": state,
+        "observation.environment_state": run.stream("tactile")["counts"],
+        "run_time_s": hand.t_s[:, None],
+        "frame_index": np.arange(len(hand))[:, None],
+    }
+
+
+def test_stats_per_episode_and_for_the_dataset_as_lerobots_recorder_writes_them(runs, tmp_path: Path):
+    out = tmp_path / "ds"
+    assert main(["export", str(runs["cam"]), str(runs["plain"]), "--out", str(out), "--no-images"]) == 0
+    info = json.loads((out / "meta/info.json").read_text())
+    episodes = _episodes(out)
+    for e in episodes:
+        assert {f"stats/{f}/{s}" for f in info["features"] for s in STATS} <= set(e), sorted(e)
+    stats = json.loads((out / "meta/stats.json").read_text())
+    assert set(stats) == set(info["features"]) and all(set(s) == set(STATS) for s in stats.values())
+    per_run = [_episode_values(twin.open_run(runs[name])) for name in ("cam", "plain")]
+    for feature in per_run[0]:
+        for e, run_values in zip(episodes, per_run, strict=True):
+            values = run_values[feature]
+            got = {s: np.array(e[f"stats/{feature}/{s}"]) for s in STATS}
+            assert got["count"].tolist() == [len(values)] and got["mean"].shape == (values.shape[1],)
+            assert np.allclose(got["mean"], values.mean(axis=0)) and np.allclose(
+                got["std"], values.std(axis=0)
+            )
+            assert np.array_equal(got["min"], values.min(axis=0)) and np.array_equal(
+                got["max"], values.max(axis=0)
+            )
+            for s in ("q01", "q10", "q50", "q90", "q99"):
+                assert np.allclose(
+                    got[s], np.quantile(values, int(s[1:]) / 100, axis=0, method="inverted_cdf")
+                ), (feature, s)
+        pooled = np.concatenate(
+            [v[feature] for v in per_run]
+        )  # the dataset's min/max/mean/std are exact poolings of the episodes'
+        assert stats[feature]["count"] == [len(pooled)]
+        assert np.allclose(stats[feature]["mean"], pooled.mean(axis=0))
+        assert np.allclose(stats[feature]["std"], pooled.std(axis=0))
+        assert np.array_equal(stats[feature]["min"], pooled.min(axis=0))
+        lengths = np.array([e["length"] for e in episodes])[:, None]
+        q50 = np.array([e[f"stats/{feature}/q50"] for e in episodes])
+        assert np.allclose(
+            stats[feature]["q50"], (q50 * lengths).sum(axis=0) / lengths.sum()
+        )  # LeRobot's mean
+
+
+def test_image_stats_per_channel_over_the_frames_lerobot_samples(runs, tmp_path: Path):
+    out = tmp_path / "img"
+    assert main(["export", str(runs["cam"]), "--out", str(out)]) == 0
+    (episode,) = _episodes(out)
+    stereo = twin.open_run(runs["cam"]).stream("stereo")
+    assert episode["length"] == len(stereo) < 100  # a short episode: LeRobot samples every frame
+    for side in ("left", "right"):
+        # what LeRobot reads (PIL, RGB), strided to about 150 px as it does frames of 300 px and more
+        rgb = np.stack(
+            [np.asarray(Image.open(_jpeg(j)).convert("RGB"))[::2, ::2] for j in stereo[f"{side}_jpeg"]]
+        )
+        pixels = rgb.reshape(-1, 3) / 255.0
+        got = {s: np.array(episode[f"stats/observation.images.{side}/{s}"]) for s in STATS}
+        assert got["count"].tolist() == [len(stereo)]
+        for s in STATS[:4] + STATS[5:]:
+            assert got[s].shape == (3, 1, 1) and ((got[s] >= 0) & (got[s] <= 1)).all(), s
+        assert np.allclose(got["mean"].ravel(), pixels.mean(axis=0), atol=2e-3)
+        assert np.allclose(got["std"].ravel(), pixels.std(axis=0), atol=2e-3)
+        assert np.allclose(
+            got["q50"].ravel(), np.quantile(pixels, 0.5, axis=0, method="inverted_cdf"), atol=2 / 255
+        )
+        assert got["mean"].ravel()[2] > got["mean"].ravel()[0]  # the scene is bluer than red: RGB, not BGR
+    stats = json.loads((out / "meta/stats.json").read_text())
+    assert np.array(stats["observation.images.left"]["q99"]).shape == (3, 1, 1)
+
+
+def _jpeg(values: np.ndarray):
+    import io
+
+    return io.BytesIO(bytes(np.asarray(values, dtype=np.uint8)))
+
+
+def test_a_run_off_the_grid_is_resampled_to_it_and_says_so(runs, tmp_path: Path, capsys):
+    out = tmp_path / "ds"
+    assert main(["export", str(runs["off_grid"]), "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "off the 30 fps grid: 2 of 8 frames repeat the previous reading, 1 reading(s) in no frame" in said
+    data = pq.read_table(out / "data/chunk-000/file-000.parquet")
+    # frame k holds the latest reading by (k + 1/2) / 30 s: the stall repeats reading 2 in frames 3 and 4,
+    # and of the two readings caught up before frame 5's instant (0.170 and 0.180 s) the later one is used
+    reading = [0, 1, 2, 2, 2, 4, 5, 6]
+    assert np.array_equal(_column(data, "frame_index"), np.arange(8))
+    assert np.array_equal(_column(data, "timestamp"), (np.arange(8) / 30).astype(np.float32))
+    assert np.array_equal(_column(data, "run_time_s"), np.array(OFF_GRID_S)[reading])
+    assert np.array_equal(_column(data, "observation.state")[:, 0], 100 * np.array(reading))
+    assert np.array_equal(_column(data, "action")[:, 0], 1000 * np.array(reading))  # the answer to each
+    (episode,) = _episodes(out)
+    assert (episode["source_held_frames"], episode["source_unused_readings"]) == (2, 1)
+
+
+def test_runs_with_the_hands_velocity_in_different_units_are_refused(runs, tmp_path: Path, capsys):
+    other = write_off_grid_run(tmp_path / "fast", velocity_unit="counts/2.56e-05s")
+    assert main(["export", str(runs["off_grid"]), str(other), "--out", str(tmp_path / "ds")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "hand.velocity_counts" in err and "counts/2.56e-05s" in err, err
+    assert not (tmp_path / "ds").exists()
 
 
 @pytest.mark.parametrize(
@@ -102,25 +226,50 @@ def test_bad_input_is_one_line(argv, message, runs, tmp_path: Path, capsys):
     assert not (tmp_path / "x").exists()
 
 
+LEROBOT_SCRIPT = """
+import json, sys
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.datasets.dataset_tools import delete_episodes
+from lerobot.datasets.utils import dataset_to_policy_features
+from lerobot.policies.act.configuration_act import ACTConfig
+from lerobot.configs.types import FeatureType
+
+ds = LeRobotDataset('barrett-twin/export', root=sys.argv[1])
+rows = [ds[i] for i in range(len(ds))]
+features = dataset_to_policy_features(ds.meta.features)
+act = ACTConfig(
+    input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
+    output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+)
+act.validate_features()
+left = delete_episodes(ds, [0], output_dir=sys.argv[2], repo_id='barrett-twin/left')
+print(json.dumps({'fps': ds.fps, 'episodes': ds.num_episodes, 'task': rows[0]['task'],
+  'state': [r['observation.state'].tolist() for r in rows],
+  'tactile': [r['observation.environment_state'].tolist() for r in rows],
+  'timestamp': [float(r['timestamp']) for r in rows],
+  'frame_index': [int(r['frame_index']) for r in rows],
+  'run_time_s': [float(r['run_time_s']) for r in rows],
+  'episode': [int(r['episode_index']) for r in rows],
+  'act_inputs': sorted(act.input_features),
+  'left_stats': {k: {s: v.tolist() for s, v in st.items()} for k, st in left.meta.stats.items()}}))
+"""
+
+
 @pytest.mark.skipif(LEROBOT_PYTHON is None, reason="TWIN_LEROBOT_PYTHON names no interpreter with lerobot")
 def test_lerobots_own_dataset_class_reads_the_runs_values(runs, tmp_path: Path):
     out = tmp_path / "ds"
     assert main(["export", str(runs["cam"]), str(runs["plain"]), "--out", str(out), "--no-images"]) == 0
-    script = (
-        "import json, sys\n"
-        "from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
-        "ds = LeRobotDataset('barrett-twin/export', root=sys.argv[1])\n"
-        "rows = [ds[i] for i in range(len(ds))]\n"
-        "print(json.dumps({'fps': ds.fps, 'episodes': ds.num_episodes, 'task': rows[0]['task'],\n"
-        "  'state': [r['observation.state'].tolist() for r in rows],\n"
-        "  'tactile': [r['observation.tactile'].tolist() for r in rows],\n"
-        "  'episode': [int(r['episode_index']) for r in rows]}))\n"
-    )
-    env = {**os.environ, "HF_HUB_OFFLINE": "1"}
-    result = subprocess.run([LEROBOT_PYTHON, "-c", script, str(out)], capture_output=True, text=True, env=env)
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_LEROBOT_HOME": str(tmp_path / "home")}
+    argv = [LEROBOT_PYTHON, "-c", LEROBOT_SCRIPT, str(out), str(tmp_path / "left")]
+    result = subprocess.run(argv, capture_output=True, text=True, env=env)
     assert result.returncode == 0, result.stderr[-2000:]
     got = json.loads(result.stdout.splitlines()[-1])
     assert got["fps"] == 30 and got["episodes"] == 2 and got["task"].startswith("compress: ")
+    assert np.array_equal(
+        np.float32(got["timestamp"]), (np.array(got["frame_index"]) / 30).astype(np.float32)
+    )
+    # ACT takes the taxels as its environment state: no camera needed
+    assert got["act_inputs"] == ["observation.environment_state", "observation.state"]
     episode = np.array(got["episode"])
     for index, name in enumerate(("cam", "plain")):
         run = twin.open_run(runs[name])
@@ -128,3 +277,12 @@ def test_lerobots_own_dataset_class_reads_the_runs_values(runs, tmp_path: Path):
         assert np.array_equal(state[:, :4], run.stream("hand")["position_counts"])
         assert np.array_equal(state[:, 8:], run.stream("hand")["strain_counts"])
         assert np.array_equal(np.array(got["tactile"])[episode == index], run.stream("tactile")["counts"])
+        # stored as float64; LeRobot's loader hands every float out as torch's default, float32
+        assert np.array_equal(
+            np.float32(got["run_time_s"])[episode == index], np.float32(run.stream("hand").t_s)
+        )
+    # LeRobot's delete_episodes re-aggregates the stats from meta/episodes: those of the episode left
+    left = got["left_stats"]["observation.state"]
+    plain = _episode_values(twin.open_run(runs["plain"]))["observation.state"]
+    assert left["count"] == [len(plain)] and np.allclose(left["mean"], plain.mean(axis=0))
+    assert np.allclose(left["q99"], np.quantile(plain, 0.99, axis=0, method="inverted_cdf"))

@@ -42,17 +42,29 @@ def command(args: argparse.Namespace) -> int:
     if args.format == "lerobot":
         import json
 
+        import pyarrow.parquet as pq
+
+        from twin.export.lerobot import EPISODES_PATH, INDEX_FEATURES, RUN_CLOCK, TACTILE
+
         info = json.loads((out / "meta" / "info.json").read_text())
-        features = [k for k in info["features"] if "index" not in k and k != "timestamp"]
+        features = [k for k in info["features"] if k not in (*INDEX_FEATURES, RUN_CLOCK)]
         print(
             f"wrote {out}: LeRobot dataset {info['codebase_version']}, {info['total_episodes']} episode(s), "
             f"{info['total_frames']} frames at {info['fps']} fps ({', '.join(features)})"
         )
-        absent = [name for name in ("observation.tactile", "observation.images.left") if name not in features]
-        if args.no_images and "observation.images.left" in absent:
-            absent.remove("observation.images.left")
-        for name in absent:
-            print(f"  {name.removesuffix('.left')}: left out, not every run recorded it")
+        absent = {TACTILE: "tactile", "observation.images.left": "observation.images"}
+        for name, what in absent.items():
+            if name not in features and not (args.no_images and what == "observation.images"):
+                print(f"  {what}: left out, not every run recorded it")
+        columns = ["source_run", "length", "source_held_frames", "source_unused_readings"]
+        episodes = pq.read_table(out / EPISODES_PATH.format(chunk_index=0, file_index=0), columns=columns)
+        for e in episodes.to_pylist():
+            if e["source_held_frames"] or e["source_unused_readings"]:
+                print(
+                    f"  {e['source_run']}: off the {info['fps']} fps grid: {e['source_held_frames']} of "
+                    f"{e['length']} frames repeat the previous reading, {e['source_unused_readings']} "
+                    "reading(s) in no frame (the hand did not keep its rate)"
+                )
     else:
         tables = sorted(p.name for p in out.glob("*.parquet"))
         print(f"wrote {out}: {', '.join(tables)} and runs.json ({len(args.runs)} run(s))")

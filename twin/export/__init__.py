@@ -12,6 +12,7 @@ not at all (twin.outputs.new_directory: concurrent exports into one `out` cannot
 from pathlib import Path
 
 from twin.export.frames import EpisodeFrames, episode_frames
+from twin.export.identity import run_id
 from twin.export.lerobot import write_lerobot
 from twin.export.tables import write_tables
 from twin.interface.errors import ConfigError
@@ -61,10 +62,7 @@ def _checked_runs(paths: list[Path], include_incomplete: bool) -> list[Path]:
                 f"{path}: the run's status is {run.status!r}, not 'complete' (killed, failed, interrupted "
                 "or still being written); --include-incomplete exports it anyway, its status recorded"
             )
-        identity = run.info.get("run_id")
-        for key in (path.resolve(), ("run_id", identity) if isinstance(identity, str) else None):
-            if key is None:
-                continue
+        for key in (path.resolve(), ("run_id", run_id(run))):
             if key in seen:
                 raise ConfigError(
                     f"{path}: the same run as {seen[key]}; a run exported twice is two identical episodes"

@@ -65,8 +65,20 @@ def stereo_stream_spec(rate_hz: float) -> StreamSpec:
         rate_hz=rate_hz,
         description="Flea2 pair (JPEG, as delivered) and the fused surface (paper §4.2 + §5), hand frame",
         fields={
-            "left_jpeg": FieldSpec(unit="byte", shape=(RAGGED,), dtype="uint8", kind="raw"),
-            "right_jpeg": FieldSpec(unit="byte", shape=(RAGGED,), dtype="uint8", kind="raw"),
+            "left_jpeg": FieldSpec(
+                unit="byte",
+                shape=(RAGGED,),
+                dtype="uint8",
+                kind="raw",
+                description="left frame, JPEG file bytes",
+            ),
+            "right_jpeg": FieldSpec(
+                unit="byte",
+                shape=(RAGGED,),
+                dtype="uint8",
+                kind="raw",
+                description="right frame, JPEG file bytes",
+            ),
             "points_m": FieldSpec(
                 unit="m", shape=(RAGGED, 3), dtype="float32", description="fused cloud, hand frame"
             ),

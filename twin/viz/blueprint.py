@@ -17,6 +17,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from twin.units import FINGER_MAX_COUNTS, FINGERTIP_FORCE_LIMIT_KG
+
 TIMELINE = "sim_time"
 FINGERS = ("F1", "F2", "F3")
 FINGER_RGB = {"F1": (228, 26, 28), "F2": (30, 120, 220), "F3": (40, 170, 60), "S": (150, 150, 150)}
@@ -37,6 +39,13 @@ FUSED_MESH_ENTITY = f"{HAND_ENTITY}/fused/mesh"
 TACTILE_POINTS_ENTITY = f"{HAND_ENTITY}/tactile_contacts"
 TACTILE_ENTITY = "tactile"
 LOG_ENTITY = "log"
+EVENTS_ENTITY = "events"
+"""The run's events as states on the shared time axis: events/phase (the procedure's phase) and
+events/F<k>_force_cap (a finger at the fingertip-force cap, where the safety layer stops its closing)."""
+FORCE_CAP_ENTITY = "plots/hand/force_cap_kg"
+"""The safety layer's fingertip-force cap, drawn on the force plot as a line."""
+LINKED_X = rrb.TimeAxis(link=rrb.components.LinkAxis.LinkToGlobal)
+"""Stacked plots share one time axis: the same instant at the same x in every one."""
 COMPRESSION_WINDOW_S = 4.0
 """The compression-window view shows the last 4 s before the time cursor (two periods of the 0.5 Hz
 sine), so the y axis fits the squeeze instead of the 0 -> 12,000-count close."""
@@ -94,6 +103,7 @@ _HAND = {
     f"/plots/hand/{f}": (FINGERS, False, 2.0) for f in ("position_counts", "velocity_rad_s", "torque_nm")
 }
 _HAND["/plots/hand/force_kg"] = (FINGERS, False, 2.0)
+_HAND[f"/{FORCE_CAP_ENTITY}"] = ((f"{FINGERTIP_FORCE_LIMIT_KG:g} kg cap",), False, 1.0)
 _COMMAND = {"/plots/command/position_counts": (tuple(f"{f} command" for f in FINGERS), True, 1.5)}
 _PADS = ("f1_tip", "f2_tip", "f3_tip", "f1_inner", "f2_inner", "f3_inner", "palm")
 _TIPS = ("F1 tip", "F2 tip", "F3 tip")
@@ -148,8 +158,15 @@ def _overrides(paths: Sequence[str]) -> dict[str, rr.SeriesLines]:
     return out
 
 
-def _plot(name: str, paths: Sequence[str], **kwargs: object) -> rrb.TimeSeriesView:
-    """A time-series view of explicit entities, series named and coloured by SERIES_STYLE."""
+def _plot(
+    name: str, paths: Sequence[str], y_range: tuple[float, float] | None = None, **kwargs: object
+) -> rrb.TimeSeriesView:
+    """A time-series view of explicit entities, series named and coloured by SERIES_STYLE; the time
+    axis linked to every other plot's, the y axis over `y_range` (the device's) where one is given."""
+    if "time_ranges" not in kwargs:  # a view of its own window (the compression's) keeps its own axis
+        kwargs["axis_x"] = LINKED_X
+    if y_range is not None:
+        kwargs["axis_y"] = rrb.ScalarAxis(range=y_range)
     return rrb.TimeSeriesView(
         name=name,
         origin="/plots",
@@ -186,7 +203,9 @@ def scene_view(kind: RunKind) -> rrb.Spatial3DView:
 def hand_views(kind: RunKind) -> list[rrb.View]:
     """Command against measured position (whole run and the compression window), velocity, torque, force."""
     position = ["/plots/hand/position_counts", "/plots/command/position_counts"]
-    views: list[rrb.View] = [_plot(f"finger position (counts), command light: {FINGER_KEY}", position)]
+    views: list[rrb.View] = [
+        _plot(f"finger position (counts), command light: {FINGER_KEY}", position, (0.0, FINGER_MAX_COUNTS))
+    ]
     if kind.experiment == "compress":
         window = rrb.VisibleTimeRange(
             TIMELINE,
@@ -201,9 +220,20 @@ def hand_views(kind: RunKind) -> list[rrb.View]:
     views += [
         _plot("joint velocity (rad/s)", ["/plots/hand/velocity_rad_s"]),
         _plot("strain-gauge torque, eq. 2 (N·m)", ["/plots/hand/torque_nm"]),
-        _plot("fingertip force, eq. 3 (kg)", ["/plots/hand/force_kg"]),
+        _plot(
+            f"fingertip force, eq. 3 (kg); grey: the {FINGERTIP_FORCE_LIMIT_KG:g} kg cap",
+            ["/plots/hand/force_kg", f"/{FORCE_CAP_ENTITY}"],
+            (0.0, 1.25 * FINGERTIP_FORCE_LIMIT_KG),
+        ),
     ]
     return views
+
+
+def events_view() -> rrb.StateTimelineView:
+    """Phases and safety events as lanes on the shared time axis."""
+    return rrb.StateTimelineView(
+        name="events: phase, fingers at the force cap", origin=f"/{EVENTS_ENTITY}", time_view=LINKED_X
+    )
 
 
 def truth_views() -> list[rrb.View]:
@@ -312,7 +342,7 @@ def run_blueprint(kind: RunKind, *, extra: Sequence[str] = ()) -> rrb.Blueprint:
             0, rrb.Vertical(result, *identify_views(), name="identification", row_shares=[2, 2, 2, 2, 2])
         )
     log = rrb.TextLogView(name="log: phases and warnings", origin=f"/{LOG_ENTITY}")
-    right = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), log, row_shares=[5, 1])
+    right = rrb.Vertical(rrb.Tabs(*tabs, active_tab=0), events_view(), log, row_shares=[5, 1, 1])
     return rrb.Blueprint(
         rrb.TimePanel(state="collapsed", timeline=TIMELINE),
         rrb.Horizontal(left, right, column_shares=[3, 2]),

@@ -41,8 +41,10 @@ if TYPE_CHECKING:
     from twin.vision.calibration import StereoCalibration
     from twin.vision.reconstruct import Reconstruction
 
+from twin.units import FINGERTIP_FORCE_LIMIT_KG
 from twin.viz.blueprint import (
     CLOUD_ENTITY,
+    EVENTS_ENTITY,
     FINGER_RGB,
     FUSED_CLOUD_ENTITY,
     FUSED_MESH_ENTITY,
@@ -321,6 +323,7 @@ class RunRecording:
         self._tactile_pads: list[tuple[str, np.ndarray]] = []
         self._pressure_scale_kpa = 0.0
         self._phase: str | None = None
+        self._at_cap = np.zeros(3, dtype=bool)
         self._observer: object | None = None
         self._last_surface_s: float | None = None
         self._last_image_s: float | None = None
@@ -557,6 +560,22 @@ class RunRecording:
             "force_kg": physical["force_kg"],
         }
         self.log_scalars("hand", t_s, values, labels=dict.fromkeys(values, FINGER_LABELS))
+        self.log_scalars("hand", t_s, {"force_cap_kg": FINGERTIP_FORCE_LIMIT_KG})
+        at_cap = np.asarray(physical["force_kg"], dtype=float)[:3] >= FINGERTIP_FORCE_LIMIT_KG
+        for k in np.flatnonzero(at_cap != self._at_cap):
+            finger = FINGER_LABELS[k]
+            cap = f"at the {FINGERTIP_FORCE_LIMIT_KG:g} kg cap"
+            self._open(t_s)  # a cleared state ends the lane's bar
+            change = rr.StateChange(state=cap) if at_cap[k] else rr.StateChange.cleared()
+            self.rec.log(f"{EVENTS_ENTITY}/{finger}_force_cap", change)
+            if at_cap[k]:
+                self.log_text(
+                    t_s,
+                    f"{finger} at the {FINGERTIP_FORCE_LIMIT_KG:g} kg fingertip-force cap: the safety "
+                    "layer lets it hold or open, not close further",
+                    level="WARN",
+                )
+        self._at_cap = at_cap
         if self.kind.sim:
             from twin.kinematics import ClutchObserver
 
@@ -572,6 +591,7 @@ class RunRecording:
         if phase != self._phase:
             self._phase = phase
             self.log_text(t_s, f"phase: {phase}")
+            self.rec.log(f"{EVENTS_ENTITY}/phase", rr.StateChange(state=phase))
 
     def log_truth(self, t_s: float, truth: Mapping[str, ArrayLike]) -> None:
         """What only the simulator knows, beside what the sensors say: the fingertips' true contact

@@ -68,9 +68,15 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
     for title in (
         "joint velocity (rad/s)",
         "strain-gauge torque, eq. 2 (N·m)",
-        "fingertip force, eq. 3 (kg)",
+        "fingertip force, eq. 3 (kg); grey: the 2 kg cap",
     ):
         assert views[title]["kind"] == "TimeSeries"
+    assert "/plots/hand/force_cap_kg" in views["fingertip force, eq. 3 (kg); grey: the 2 kg cap"]["contents"]
+    assert views["events: phase, fingers at the force cap"] == {
+        "kind": "StateTimeline",
+        "origin": "/events",
+        "contents": ["$origin/**"],
+    }
     assert views["log: phases and warnings"] == {
         "kind": "TextLog",
         "origin": "/log",
@@ -103,6 +109,33 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
             "/plots/identify/f2/model_n",
         ]
         assert views[indentation]["contents"][0] == "/plots/identify/f1/indentation_mm"
+
+
+def test_plots_share_one_time_axis_and_the_devices_plots_span_the_devices_range(tmp_path):
+    """Stacked plots are linked in time (the same instant at the same x), except the compression window,
+    which follows the cursor; position spans the drive's 0-17,800 counts and force 0 to past the cap."""
+    blueprint = read_rrd_blueprint(_saved(tmp_path, KINDS["compress"]))
+
+    def by_name(column: str, suffix: str) -> dict[str, object]:
+        names = {
+            p: c["ViewBlueprint:display_name"][0]
+            for p, c in blueprint.items()
+            if "ViewBlueprint:display_name" in c
+        }
+        return {
+            names[p.removesuffix(suffix)]: c[column][0]
+            for p, c in blueprint.items()
+            if column in c and p.removesuffix(suffix) in names
+        }
+
+    kinds = by_name("ViewBlueprint:class_identifier", "")
+    linked = {n for n, link in by_name("TimeAxis:link", "/TimeAxis").items() if link == 2}
+    plots = {n for n, kind in kinds.items() if kind == "TimeSeries"}
+    assert plots - linked == {"compression window, last 4 s (counts)"}
+    assert "events: phase, fingers at the force cap" in linked  # the events' lanes too
+    ranges = by_name("ScalarAxis:range", "/ScalarAxis")
+    assert ranges["finger position (counts), command light: F1 red, F2 blue, F3 green"] == [0.0, 17800.0]
+    assert ranges["fingertip force, eq. 3 (kg); grey: the 2 kg cap"] == [0.0, 2.5]
 
 
 def test_the_3d_eye_looks_at_the_foam_with_z_up(tmp_path):
@@ -180,6 +213,13 @@ def test_a_sim_run_logs_its_phases_and_colours_its_fingers(sim_run):
     ]
     assert [line[0] for line in lines if line[0].startswith("phase:")][:1] == ["phase: close"]
     assert any(line[0].startswith("tactile colour scale: 0-") for line in lines)
+    state = rr.StateChange.descriptor_state().component  # the phases as a lane on the time axis too
+    phases = [
+        v
+        for chunk in RrdReader(path).stream().filter(content="/events/phase")
+        for v in chunk.to_record_batch().column(state).to_pylist()
+    ]
+    assert phases[:1] == [["close"]]
     # the series' colours are in the recording too (static), whichever blueprint the viewer uses
     colors = rr.SeriesLines.descriptor_colors().component
     (row,) = [

@@ -168,3 +168,32 @@ def test_surface_and_cable_flexes(tmp_path):
     assert verts.shape == (12, 3)
     assert faces.shape == (2 * 3 * 2, 3)
     assert read_rrd_entities(path)["/world/flex/cable"] == 1
+
+
+def test_a_finger_at_the_force_cap_is_an_event_a_warning_and_a_line_on_the_force_plot(tmp_path):
+    """The safety layer stops a finger at the 2 kg fingertip-force cap from closing: the recording says
+    when (a state lane per finger, a warning row on entering) and draws the cap on the force plot."""
+    import rerun as rr
+
+    from twin.viz.rerun_log import _rows
+
+    path = tmp_path / "cap.rrd"
+    forces = [(0.0, [0.5, 0.5, 1.9]), (0.1, [0.6, 0.5, 2.0]), (0.2, [0.6, 0.5, 2.3]), (0.3, [2.1, 0.5, 1.2])]
+    with RunRecording(path) as rec:
+        rec.log_command(0.0, [1000, 1000, 1000], "compress")
+        for t, force in forces:
+            physical = {"velocity_rad_s": np.zeros(4), "torque_nm": np.zeros(3), "force_kg": np.array(force)}
+            rec.log_hand(t, np.array([5000, 5000, 5000, 0]), np.zeros(3), physical)
+    state = rr.StateChange.descriptor_state().component
+    lanes = {
+        finger: [(t, cells[state]) for t, cells in _rows(path, f"events/{finger}_force_cap", [state])]
+        for finger in ("F1", "F2", "F3")
+    }
+    assert lanes["F3"] == [(0.1, ["at the 2 kg cap"]), (0.3, [])]  # entered at 2.0 kg, cleared at 1.2
+    assert lanes["F1"] == [(0.3, ["at the 2 kg cap"])] and lanes["F2"] == []
+    assert [cells[state] for _, cells in _rows(path, "events/phase", [state])] == [["compress"]]
+    text, level = rr.TextLog.descriptor_text().component, rr.TextLog.descriptor_level().component
+    warnings = [cells[text][0] for _, cells in _rows(path, "log", [text, level]) if cells[level] == ["WARN"]]
+    assert [w.split(" ", 1)[0] for w in warnings] == ["F3", "F1"]
+    _, cap = read_rrd_scalars(path, "plots/hand/force_cap_kg")
+    assert np.allclose(cap, 2.0) and len(cap) == len(forces)

@@ -49,7 +49,9 @@ LINKED_X = rrb.TimeAxis(link=rrb.components.LinkAxis.LinkToGlobal)
 COMPRESSION_WINDOW_S = 4.0
 """The compression-window view shows the last 4 s before the time cursor (two periods of the 0.5 Hz
 sine), so the y axis fits the squeeze instead of the 0 -> 12,000-count close."""
-DEFAULT_EYE_TARGET_M = (0.0, 0.0, 0.3)
+DEFAULT_EYE_TARGET_M = (0.0, 0.0, 0.12)
+"""Where the 3-D view looks when the run holds no object (a free run): between the palm (z 0.075 m,
+twin/sim/scene.py) and the fingertips, where they meet over it, so the whole hand is in the picture."""
 EYE_OFFSET_M = (0.14, -0.19, 0.11)
 """Where the 3-D camera sits from what it looks at (the foam): in front of the palm, above, to one side."""
 FINGER_KEY = "F1 red, F2 blue, F3 green"
@@ -194,7 +196,7 @@ def scene_view(kind: RunKind) -> rrb.Spatial3DView:
             f"/{p}": rrb.EntityBehavior(visible=False)
             for p in (MESH_ENTITY, FUSED_CLOUD_ENTITY, DEPTH_ENTITY)
         }
-    name = "hand and foam (m, z up)"
+    name = "hand (m, z up)" if kind.experiment == "free" else "hand and foam (m, z up)"
     if kind.stereo and kind.sim:
         name += f"; stereo points by error to the truth: green 0 to red >= {POINT_ERROR_SCALE_MM:g} mm"
     return rrb.Spatial3DView(name=name, origin="/world", eye_controls=eye, overrides=hidden)

@@ -57,12 +57,13 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
     kind = KINDS[name]
     path = _saved(tmp_path, kind)
     views = read_rrd_views(path)
-    scenes = [v for t, v in views.items() if t.startswith("hand and foam (m, z up)")]
+    scene = (
+        "hand (m, z up)" if kind.experiment == "free" else "hand and foam (m, z up)"
+    )  # no foam in a free run
+    scenes = [v for t, v in views.items() if t.startswith(scene)]
     assert len(scenes) == 1 and scenes[0]["kind"] == "3D" and scenes[0]["origin"] == "/world"
     coloured_by_error = "stereo points by error to the truth: green 0 to red >= 5 mm"
-    assert (coloured_by_error in next(t for t in views if t.startswith("hand and foam"))) == (
-        kind.stereo and kind.sim
-    )
+    assert (coloured_by_error in next(t for t in views if t.startswith(scene))) == (kind.stereo and kind.sim)
     position = views["finger position (counts), command light: F1 red, F2 blue, F3 green"]
     assert position["contents"] == ["/plots/hand/position_counts", "/plots/command/position_counts"]
     for title in (
@@ -265,3 +266,30 @@ def test_twin_view_writes_the_blueprint_of_the_run_and_says_how_to_serve_it(sim_
         f"-L {WEB_VIEWER_PORT}:localhost:{WEB_VIEWER_PORT}" in ssh
         and f"-L {GRPC_PORT}:localhost:{GRPC_PORT}" in ssh
     )
+
+
+def test_a_free_run_looks_at_the_hand_not_above_it(tmp_path):
+    """A run holding no object aims the 3-D view inside the hand's own extent (palm to fingertips, in the
+    hand's model at rest and closed), so the whole hand is framed."""
+    import mujoco
+
+    from twin.assets import SCENE_XML
+
+    model = mujoco.MjModel.from_xml_path(str(SCENE_XML))
+    data = mujoco.MjData(model)
+    extents = []
+    for closed in (0.0, 1.0):  # open, then every hinge at its upper limit
+        data.qpos[:] = closed * model.jnt_range[:, 1]
+        mujoco.mj_forward(model, data)
+        hand = [
+            g
+            for g in range(model.ngeom)
+            if model.body(model.geom_bodyid[g]).name.startswith(("f1", "f2", "f3", "palm"))
+        ]
+        reach = model.geom_rbound[hand, None]
+        extents += [data.geom_xpos[hand] - reach, data.geom_xpos[hand] + reach]
+    points = np.concatenate(extents)
+    blueprint = read_rrd_blueprint(_saved(tmp_path, KINDS["free"]))
+    (eye,) = [cols for path, cols in blueprint.items() if path.endswith("/EyeControls3D")]
+    target = np.array(eye["EyeControls3D:look_target"][0])
+    assert (points.min(axis=0) - 1e-3 <= target).all() and (target <= points.max(axis=0) + 1e-3).all()

@@ -151,6 +151,7 @@ def run_experiment(
                 sim=backend.scene() is not None,
                 stereo=stereo_pipeline is not None,
                 predict=shape_model is not None,
+                tactile=backend.tactile is not None,
             )
             recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
             try:
@@ -293,9 +294,12 @@ def _stereo_pipeline(
 
 
 def _scene_logger(backend: Backend, recording: Any) -> Callable[[float], None] | None:
-    """3-D scene logging where the backend has a MuJoCo scene (the sim)."""
+    """3-D scene logging where the backend has a MuJoCo scene (the sim); on hardware the hand model."""
     scene = backend.scene()
-    if scene is None:
+    if scene is None:  # hardware: the hand's model, posed from its readings by the recording itself
+        log_hand_model = getattr(recording, "log_hand_model", None)
+        if log_hand_model is not None:
+            log_hand_model()
         return None
     model, data = scene
     recording.log_model(model)

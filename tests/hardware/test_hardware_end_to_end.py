@@ -160,6 +160,14 @@ def test_hand_flag_and_ctrl_c_idle_the_hand_and_keep_the_recording(tmp_path: Pat
     assert run.status == "interrupted"
     samples = len(run.stream("hand").t_s)
     assert samples >= recorded >= 60  # what was on disk before Ctrl-C is still there after it
+    # The 3-D view shows the hand as its readings pose it (hardware has no simulated scene): the
+    # model's links logged over the run, the closing finger's distal link moving with the encoders.
+    from twin.viz.rerun_log import read_rrd_entities, read_rrd_transforms
+
+    rrd = tmp_path / "hw" / "run.rrd"
+    assert read_rrd_entities(rrd).get("/world/bodies/f1_outer", 0) >= 10
+    path = np.array([pose[:3, 3] for pose in read_rrd_transforms(rrd, "/world/bodies/f1_outer")])
+    assert np.ptp(path, axis=0).max() > 0.01  # metres: it closed on the block
 
 
 def _wait_for_samples(run_dir: Path, n: int, timeout_s: float = 60) -> int:

@@ -138,6 +138,8 @@ class RunKind:
     predict: bool = False
     identify: bool = False
     eye_target_m: tuple[float, float, float] | None = None
+    tactile: bool = True
+    """Whether the run has the pads (a hand-only hardware run has none: no empty pad views)."""
 
     @property
     def name(self) -> str:
@@ -320,12 +322,16 @@ def run_blueprint(kind: RunKind, *, extra: Sequence[str] = ()) -> rrb.Blueprint:
     Left: the 3-D scene above the sensors (cameras and depth side by side in camera runs, the tactile
     pads beside them). Right: the time series in tabs, the hand's first; the log (phases) below them.
     """
-    sensors: list[rrb.View] = [tactile_view()]
+    sensors: list[rrb.View] = [tactile_view()] if kind.tactile else []
     if kind.stereo:
         sensors += camera_views(kind)
     elif kind.predict:
         sensors.append(rrb.Spatial2DView(name="contour: predicted (px)", origin=f"/{RECTIFIED_ENTITY}"))
-    left = rrb.Vertical(scene_view(kind), rrb.Horizontal(*sensors), row_shares=[3, 2])
+    left = (
+        rrb.Vertical(scene_view(kind), rrb.Horizontal(*sensors), row_shares=[3, 2])
+        if sensors
+        else scene_view(kind)
+    )
     pads = _plot("pad forces, eq. 6 (N)", ["/plots/tactile/pad_force_n"])
     tabs: list[rrb.Container] = [rrb.Vertical(*hand_views(kind), name="hand")]
     if kind.sim:
@@ -334,7 +340,7 @@ def run_blueprint(kind: RunKind, *, extra: Sequence[str] = ()) -> rrb.Blueprint:
             error = ["/plots/stereo_truth/median_mm", "/plots/stereo_truth/p90_mm"]
             truth.append(_plot("reconstruction error vs truth: median, p90 (mm)", error))
         tabs.append(rrb.Vertical(*truth, name="truth vs sensors"))
-    else:
+    elif kind.tactile:
         tabs.append(rrb.Vertical(pads, name="tactile"))
     if extra:  # plotted entities no view of this kind names
         tabs.append(rrb.Vertical(_plot("other series", list(extra)), name="other"))
@@ -392,5 +398,6 @@ def kind_of_run(run_dir: Path, eye_target_m: Sequence[float] | None = None) -> R
         stereo="stereo" in streams,
         predict="shape" in streams,
         identify=any(run_dir.glob("*/identify.rrd")),
+        tactile="tactile" in streams or not streams,
         eye_target_m=None if eye_target_m is None else tuple(float(x) for x in eye_target_m),
     )

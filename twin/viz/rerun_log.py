@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from twin.vision.calibration import StereoCalibration
     from twin.vision.reconstruct import Reconstruction
 
+from twin import units
 from twin.units import FINGERTIP_FORCE_LIMIT_KG
 from twin.viz.blueprint import (
     CLOUD_ENTITY,
@@ -93,6 +94,8 @@ PRESSURE_SCALE_PERCENTILE = 80.0
 PRESSURE_COLORMAP = rr.components.Colormap.Viridis
 CONTACT_ARROW_M_PER_N = 0.004
 CAMERA_SIDES = ("left", "right")
+HAND_POSE_RATE_HZ = 30.0
+"""How often a hardware run's hand model is posed from its readings: the sim scene's rate (twin.rig)."""
 CONTOUR_RGB = {"predicted": (230, 60, 200), "measured": (40, 220, 90)}
 """The shape network's contour in magenta, the camera's in green."""
 JPEG_QUALITY = 80
@@ -324,6 +327,8 @@ class RunRecording:
         self._pressure_scale_kpa = 0.0
         self._phase: str | None = None
         self._at_cap = np.zeros(3, dtype=bool)
+        self._hand_model = None
+        self._hand_posed_t_s = -np.inf
         self._observer: object | None = None
         self._last_surface_s: float | None = None
         self._last_image_s: float | None = None
@@ -440,6 +445,15 @@ class RunRecording:
                     _flex_surface(model, f),
                 )
             )
+
+    def log_hand_model(self) -> None:
+        """A run without a simulated scene (hardware): the hand's own model (bh8.xml), posed from each
+        hand reading by the kinematics the vision uses (twin.kinematics: link angles through the
+        clutch observer), so the 3-D view shows the hand as the encoders and gauges place it."""
+        from twin.kinematics import HandKinematics
+
+        self._hand_model = HandKinematics()
+        self.log_model(self._hand_model.model)
 
     def log_scene(self, t_s: float, data: mujoco.MjData) -> None:
         """Body world poses and the flex meshes (positions, normals) at sim time t_s."""
@@ -576,13 +590,18 @@ class RunRecording:
                     level="WARN",
                 )
         self._at_cap = at_cap
-        if self.kind.sim:
+        if self.kind.sim or self._hand_model is not None:
             from twin.kinematics import ClutchObserver
 
             if self._observer is None:
                 self._observer = ClutchObserver()
             links = self._observer.update(counts, strain_counts)
+        if self.kind.sim:
             self.log_scalars("observer", t_s, {"inner_rad": links[:, 0], "outer_rad": links[:, 1]})
+        if self._hand_model is not None and t_s >= self._hand_posed_t_s + 1.0 / HAND_POSE_RATE_HZ:
+            self._hand_posed_t_s = t_s
+            self._hand_model.set_angles(links, float(units.spread_counts_to_rad(counts[3])))
+            self.log_scene(t_s, self._hand_model.data)
 
     def log_command(self, t_s: float, position_counts: ArrayLike, phase: str) -> None:
         """A command as applied (F1-F3 set points, counts); a change of the procedure's phase goes to

@@ -32,6 +32,7 @@ KINDS = {
     "predict": RunKind("compress", predict=True),
     "identify": RunKind("compress", identify=True),
     "hardware": RunKind("compress", sim=False),
+    "hand only": RunKind("compress", sim=False, tactile=False),
 }
 FINGER_U32 = {f: int.from_bytes(bytes([*rgb, 255]), "big") for f, rgb in FINGER_RGB.items()}
 """Rerun's packed RGBA of each finger's colour."""
@@ -84,7 +85,8 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
         "contents": ["$origin/**"],
     }
     tactile = [v for t, v in views.items() if t.startswith("tactile pressure (kPa")]
-    assert len(tactile) == 1 and tactile[0]["origin"] == "/tactile"
+    assert len(tactile) == kind.tactile and all(v["origin"] == "/tactile" for v in tactile)
+    assert ("pad forces, eq. 6 (N)" in views) == kind.tactile  # a hand-only run: no empty pad views
     assert ("compression window, last 4 s (counts)" in views) == (kind.experiment == "compress")
     truth = "tip contact force: true (light) vs eq. 6 (N)"
     assert (truth in views) == kind.sim

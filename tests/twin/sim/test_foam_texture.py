@@ -31,7 +31,7 @@ def _foam(kind: str, directory: Path) -> FoamParams:
         return block
     if kind == "faithful block":
         return block.with_overrides(fidelity="faithful")
-    egg = write_closed_surface(directory / "egg.stl", (32.0, 26.0, 22.0), egg=0.15)  # lies on its side
+    egg = write_closed_surface(directory / "egg.stl", (32.0, 26.0, 22.0), egg=0.15)  # squat: it stays put
     return mesh_object(egg, block)
 
 

@@ -207,7 +207,7 @@ def add_foam_texture(root: mjcf.RootElement, name: str = FOAM_NAME) -> bool:
             specular=0.05,
             shininess=0.05,
         )
-    if direct and foam.texcoord is None:
+    if direct and foam.texcoord is None and foam.point is not None:
         points = np.asarray(foam.point, dtype=float).reshape(-1, 3)
         tets = np.asarray(foam.element, dtype=int).reshape(-1, 4)
         uv_m = pore_texcoords(points, tets)

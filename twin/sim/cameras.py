@@ -172,8 +172,9 @@ def add_foam_texture(root: mjcf.RootElement, name: str = FOAM_NAME) -> bool:
     """Give the flexcomp `name` an open-cell look: random dark pores, tinted by its rgba; False if absent.
 
     The texture is grey-scale (white with grey pores) so the object's own rgba keeps its colour; the
-    pores give block matching (StereoBM) the surface texture a real foam has: at the working
-    distance a pore is ~1 processed pixel and the pattern does not repeat across the object.
+    pores give the stereo matcher (OpenCV's StereoSGBM, twin.vision.pipeline) the surface texture a
+    real foam has: at the working distance a pore is ~1 processed pixel and the pattern does not repeat
+    across the object.
     MuJoCo gives a flexcomp primitive its texture coordinates; a direct flex (the faithful preset,
     every mesh foam) has none, and MuJoCo draws a flex without them untextured, so they are computed
     here from its rest shape (pore_texcoords).

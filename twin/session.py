@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from twin import __version__, units
 from twin.interface.backend import Backend
@@ -28,9 +28,9 @@ from twin.recording import RunWriter
 from twin.rig import Rig, RigResult, summarize_surface_scores
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, load_calibration
-from twin.vision.calibration import StereoCalibration
-from twin.vision.pipeline import StereoPipeline
-from twin.vision.reconstruct import Rectifier
+
+if TYPE_CHECKING:  # the vision stack is imported only by runs with cameras
+    from twin.vision.pipeline import StereoPipeline
 
 RRD_NAME = "run.rrd"
 
@@ -269,6 +269,10 @@ def _stereo_pipeline(
     """The run's vision pipeline from the calibration copied into the run, or None without cameras."""
     if backend.stereo is None:
         return None
+    from twin.vision.calibration import StereoCalibration
+    from twin.vision.pipeline import StereoPipeline
+    from twin.vision.reconstruct import Rectifier
+
     path = files.get("stereo_calibration")
     if path is None:
         raise ConfigError(

@@ -459,6 +459,10 @@ def test_view_without_a_display_prints_commands_that_run(tmp_path: Path):
     assert main(["run", "compress", "--duration", "0.5", "--out", str(out), "--no-progress"]) == 0
     shown = twin("view", str(out)).stdout
     assert "FILES" not in shown and f"--serve-web {out / 'run.rrd'}" in shown
+    assert "--web-viewer-port 9090 --port 9876" in shown  # the defaults, unless chosen:
+    shown = twin("view", str(out), "--port", "19876", "--web-viewer-port", "19090").stdout
+    assert "--web-viewer-port 19090 --port 19876" in shown and "-L 19090:localhost:19090" in shown
+    assert "http://localhost:19090/?url=rerun%2Bhttp://localhost:19876/proxy" in shown
 
 
 def test_emulate_rig_writes_nothing_into_the_working_directory(tmp_path: Path):

@@ -28,7 +28,7 @@ def fail(message: str) -> int:
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
     """--help lines end with the option's default where it has one worth showing (not None or False),
-    unless the help already names it."""
+    unless the help already names it; a list default reads as it is typed (`a b`, not `['a', 'b']`)."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
@@ -42,7 +42,12 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
             or action.nargs == 0
         ):
             return action.help
-        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+        shown = (
+            " ".join(str(v) for v in default).replace("%", "%%")
+            if isinstance(default, list | tuple)
+            else "%(default)s"
+        )
+        return f"{text} (default: {shown})" if text else f"(default: {shown})"
 
 
 class TwinArgumentParser(argparse.ArgumentParser):

@@ -28,6 +28,7 @@ _API = (
     "HandReading",
     "Run",
     "RunOutcome",
+    "RunWarning",
     "SafetyLimits",
     "compress",
     "foam",

@@ -11,6 +11,7 @@ verified.
 from __future__ import annotations
 
 import contextlib
+import json
 import platform
 import sys
 import tempfile
@@ -45,6 +46,23 @@ class RunOutcome:
     status: str
     warnings: list[str] = field(default_factory=list)
     """Lines to show the user (stderr) beside a complete status, also kept in run.json's 'warnings'."""
+
+
+def completion_warnings(outcome: RunOutcome) -> list[str]:
+    """What a complete run should tell its user, one line each: its warnings (a hardware loop that
+    missed its rate) and the hand cycles the driver recovered (run.json lists each one)."""
+    lines = list(outcome.warnings)
+    try:
+        metadata = json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
+    except (OSError, ValueError, KeyError, TypeError):  # the run's own reader reports a bad run.json
+        return lines
+    recoveries = metadata.get("hand_recoveries") or []
+    if recoveries:
+        lines.append(
+            f"the hand driver recovered {len(recoveries)} cycle(s) (run.json: metadata.hand_recoveries); "
+            f"first: {recoveries[0]}"
+        )
+    return lines
 
 
 def default_run_dir(experiment: str, object_name: str) -> Path:

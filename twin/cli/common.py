@@ -154,18 +154,12 @@ def run_metadata(path: Path, flag: str) -> dict:
 def print_completion(outcome) -> dict:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
     """'run complete' on stdout; on stderr each of the run's warnings (a loop that missed its rate) and
     how many hand cycles the driver recovered (each is listed in run.json). Returns run.json's metadata."""
+    from twin.session import completion_warnings
+
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
-    for warning in outcome.warnings:
+    for warning in completion_warnings(outcome):
         print(f"twin: warning: {warning}", file=sys.stderr)
-    meta = json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
-    recoveries = meta.get("hand_recoveries") or []
-    if recoveries:
-        print(
-            f"twin: warning: the hand driver recovered {len(recoveries)} cycle(s) "
-            f"(run.json: metadata.hand_recoveries); first: {recoveries[0]}",
-            file=sys.stderr,
-        )
-    return meta
+    return json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
 
 
 def surface_summary(truth: dict) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from typing import TYPE_CHECKING
 
 from twin.cli.common import (
@@ -14,7 +15,7 @@ from twin.cli.common import (
     surface_summary,
     with_progress,
 )
-from twin.interface.errors import ConfigError
+from twin.interface.errors import ConfigError, RunWarning
 from twin.validation import existing_dir, existing_file
 
 if TYPE_CHECKING:
@@ -123,20 +124,22 @@ def cmd_compress(args: argparse.Namespace) -> int:
 
         box = parse_box(args.bbox)
     backend = _backend(args, foam, cameras=args.cameras)
-    outcome = with_progress(
-        args.duration,
-        not args.no_progress,
-        lambda progress: api.compress(
-            backend,
-            duration_s=args.duration,
-            out=args.out,
-            object_name=foam.name,
-            progress=progress,
-            stereo_box=box,
-            shape_model=shape_model,
-            argv=sys.argv,
-        ),
-    )
+    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
+        warnings.simplefilter("ignore", RunWarning)
+        outcome = with_progress(
+            args.duration,
+            not args.no_progress,
+            lambda progress: api.compress(
+                backend,
+                duration_s=args.duration,
+                out=args.out,
+                object_name=foam.name,
+                progress=progress,
+                stereo_box=box,
+                shape_model=shape_model,
+                argv=sys.argv,
+            ),
+        )
     truth = print_completion(outcome).get("stereo_truth")
     if truth:
         print(f"reconstruction vs the twin's truth: {surface_summary(truth)}")
@@ -149,13 +152,15 @@ def cmd_free(args: argparse.Namespace) -> int:
     from twin import api
 
     backend = _backend(args, None)
-    outcome = with_progress(
-        args.duration,
-        not args.no_progress,
-        lambda progress: api.free(
-            backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
-        ),
-    )
+    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
+        warnings.simplefilter("ignore", RunWarning)
+        outcome = with_progress(
+            args.duration,
+            not args.no_progress,
+            lambda progress: api.free(
+                backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
+            ),
+        )
     print_completion(outcome)
     print(f"use it: twin identify RUN --free {outcome.run_dir}")
     return 0

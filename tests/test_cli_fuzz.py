@@ -354,7 +354,7 @@ SCRIPT_CASES = [
     ["run", "compress", "--seed", "-1", "--out", "SCRIPT_RUN"],
     ["sweep", "--duration", "nan", "--out", "SCRIPT_DATASET"],
     ["fit", "RUN", "--young", "inf"],
-    ["emulate", "hand", "--rig-file", "missing_dir/rig.toml"],
+    ["emulate", "hand", "--rig-file", "file/emu/rig.toml"],  # under a plain file: never creatable
 ]
 
 

@@ -22,7 +22,6 @@ from twin.interface.errors import DeviceError, DeviceNotConfiguredError
 from twin.interface.hand_spec import HandConfig, hand_device_spec
 from twin.interface.specs import DeviceSpec
 from twin.safety import SafetyLimits
-from twin.vision.calibration import StereoCalibration
 
 
 class WallClock(Clock):
@@ -101,6 +100,8 @@ class HardwareBackend(Backend):
         )
         stereo_file = self.config.calibration.get(STEREO_CALIBRATION)
         if stereo_file is not None:  # a missing or bad file fails here, before anything is opened
+            from twin.vision.calibration import StereoCalibration  # only a rig with cameras needs it
+
             StereoCalibration.load(stereo_file)
         self.stereo = None if self.config.stereo is None else StereoCapture(self.config.stereo, self._clock)
         port = self.config.hand_port

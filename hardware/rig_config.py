@@ -50,7 +50,6 @@ from twin.interface.tactile_spec import TactileConfig
 from twin.safety import SafetyLimits
 from twin.tactile.calibration import load_points, load_table
 from twin.validation import check_number
-from twin.vision.calibration import StereoCalibration, StereoCalibrationError
 
 _HAND_KEYS = {
     "port": str,
@@ -340,6 +339,8 @@ def _stereo(
     calibration = stereo.pop("calibration", None)
     if calibration is not None:
         file = _named_file(path, "[stereo].calibration", calibration, exists=False)
+        from twin.vision.calibration import StereoCalibration, StereoCalibrationError  # a rig with cameras
+
         try:
             StereoCalibration.load(file)  # one line naming the file and what is wrong with it
         except StereoCalibrationError as exc:

@@ -367,10 +367,23 @@ def test_calibrate_refuses_to_overwrite_without_force(tmp_path: Path):
     assert taken.read_text() == "precious" and sorted(p.name for p in tmp_path.iterdir()) == [taken.name]
 
 
-def test_emulate_refuses_a_rig_file_in_a_missing_directory_before_serving(tmp_path: Path):
-    result = twin("emulate", "hand", "--rig-file", str(tmp_path / "missing" / "rig.toml"), "--duration", "1")
-    one_line(result, "--rig-file", "no such directory")
+def test_emulate_refuses_a_rig_file_under_a_file_before_serving(tmp_path: Path):
+    (tmp_path / "plain").write_text("")
+    result = twin(
+        "emulate", "hand", "--rig-file", str(tmp_path / "plain" / "emu" / "rig.toml"), "--duration", "1"
+    )
+    one_line(result, "--rig-file", "is not a directory")
     assert "ready" not in result.stdout
+
+
+def test_emulate_writes_its_rig_file_into_a_new_directory(tmp_path: Path):
+    """The README's `twin emulate rig --rig-file runs/emu/rig.toml`, from a fresh clone: runs/emu is made."""
+    argv = ["emulate", "rig", "--rig-file", "runs/emu/rig.toml", "--no-cameras", "--duration", "0.5"]
+    result = subprocess.run([*TWIN, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "rig file: runs/emu/rig.toml" in result.stdout
+    assert '\n[hand]\nport = "/dev/' in (tmp_path / "runs" / "emu" / "rig.toml").read_text()
+    assert (tmp_path / "runs" / "emu" / "calibration").is_dir()
 
 
 @pytest.mark.parametrize(
@@ -459,6 +472,10 @@ def test_view_without_a_display_prints_commands_that_run(tmp_path: Path):
     assert main(["run", "compress", "--duration", "0.5", "--out", str(out), "--no-progress"]) == 0
     shown = twin("view", str(out)).stdout
     assert "FILES" not in shown and f"--serve-web {out / 'run.rrd'}" in shown
+    assert "--web-viewer-port 9090 --port 9876" in shown  # the defaults, unless chosen:
+    shown = twin("view", str(out), "--port", "19876", "--web-viewer-port", "19090").stdout
+    assert "--web-viewer-port 19090 --port 19876" in shown and "-L 19090:localhost:19090" in shown
+    assert "http://localhost:19090/?url=rerun%2Bhttp://localhost:19876/proxy" in shown
 
 
 def test_emulate_rig_writes_nothing_into_the_working_directory(tmp_path: Path):

@@ -223,6 +223,7 @@ BAD_PATHS = {
     "out_dir": ["", "a\0b", "file", "file/x", "file/x/y", "rig.toml"],
     "new_dir": ["", "a\0b", "file", "file/x", "full_dir", "RUN"],
     "out_file": ["", "a\0b", "empty_dir", "RUN", "missing_dir/x.json", "file/x.json"],
+    "out_file_tree": ["", "a\0b", "empty_dir", "RUN", "file/x.json", "file/x/y.toml"],
 }
 
 
@@ -353,7 +354,7 @@ SCRIPT_CASES = [
     ["run", "compress", "--seed", "-1", "--out", "SCRIPT_RUN"],
     ["sweep", "--duration", "nan", "--out", "SCRIPT_DATASET"],
     ["fit", "RUN", "--young", "inf"],
-    ["emulate", "hand", "--rig-file", "missing_dir/rig.toml"],
+    ["emulate", "hand", "--rig-file", "file/emu/rig.toml"],  # under a plain file: never creatable
 ]
 
 

@@ -9,9 +9,12 @@ import os
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
-# Headless by default: MuJoCo reads MUJOCO_GL when it is first imported, and any twin module may be
-# what imports it (the sim, the viewer, the hand's kinematics); a caller's own choice is kept.
-os.environ.setdefault("MUJOCO_GL", "egl")
+from twin import rendering as _rendering  # notes the caller's MUJOCO_GL before the default below
+
+# MuJoCo reads MUJOCO_GL once, when it is first imported, for its default context: headless (EGL) by
+# default for a caller's own mujoco.Renderer; a caller's own choice is kept. twin's renders choose their
+# back-end when they are made (twin.rendering), whichever of mujoco and twin was imported first.
+os.environ.setdefault("MUJOCO_GL", _rendering.DEFAULT)
 
 try:
     __version__ = version("barrett-twin")
@@ -25,6 +28,7 @@ _API = (
     "HandReading",
     "Run",
     "RunOutcome",
+    "RunWarning",
     "SafetyLimits",
     "compress",
     "foam",

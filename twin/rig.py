@@ -36,11 +36,12 @@ from twin.recording import FieldSpec, RunWriter, StreamSpec
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
-from twin.vision.contour import ContourError, hull, outlines, resample
-from twin.vision.pipeline import HandSnapshot, StereoPipeline, SurfaceFrame, stereo_stream_spec
 
 if TYPE_CHECKING:
     from twin.shape.model import ShapeModel  # torch: imported only by runs that predict
+
+    # The vision stack (OpenCV, scipy.ndimage, scikit-image) is imported only by runs with cameras.
+    from twin.vision.pipeline import HandSnapshot, StereoPipeline, SurfaceFrame
 
 
 class Controller(Protocol):
@@ -372,6 +373,8 @@ class Rig:
                 rate = backend.stereo.spec.rate_hz
                 specs.append(contour_stream_spec("contour", rate, shape_model.points, "measured"))
         if stereo_pipeline is not None:
+            from twin.vision.pipeline import stereo_stream_spec
+
             specs.append(stereo_stream_spec(backend.stereo.spec.rate_hz))
             if backend.ground_truth() is not None:
                 rate = backend.stereo.spec.rate_hz / STEREO_TRUTH_EVERY
@@ -614,6 +617,8 @@ class Rig:
         model, pipeline = self.shape_model, self.stereo_pipeline
         if model is None or pipeline.tracker is None or not surface.reconstruction.mask.any():
             return None
+        from twin.vision.contour import ContourError, hull, outlines, resample
+
         left_rect = pipeline.rectifier.remap(frame.left, "left")
         try:
             pieces = outlines(surface.reconstruction.mask, pipeline.tracker.back_project(left_rect))

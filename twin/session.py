@@ -11,6 +11,7 @@ verified.
 from __future__ import annotations
 
 import contextlib
+import json
 import platform
 import sys
 import tempfile
@@ -18,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from twin import __version__, units
 from twin.interface.backend import Backend
@@ -28,9 +29,9 @@ from twin.recording import RunWriter
 from twin.rig import Rig, RigResult, summarize_surface_scores
 from twin.safety import SafetyLayer
 from twin.tactile.calibration import TaxelCalibration, load_calibration
-from twin.vision.calibration import StereoCalibration
-from twin.vision.pipeline import StereoPipeline
-from twin.vision.reconstruct import Rectifier
+
+if TYPE_CHECKING:  # the vision stack is imported only by runs with cameras
+    from twin.vision.pipeline import StereoPipeline
 
 RRD_NAME = "run.rrd"
 
@@ -45,6 +46,23 @@ class RunOutcome:
     status: str
     warnings: list[str] = field(default_factory=list)
     """Lines to show the user (stderr) beside a complete status, also kept in run.json's 'warnings'."""
+
+
+def completion_warnings(outcome: RunOutcome) -> list[str]:
+    """What a complete run should tell its user, one line each: its warnings (a hardware loop that
+    missed its rate) and the hand cycles the driver recovered (run.json lists each one)."""
+    lines = list(outcome.warnings)
+    try:
+        metadata = json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
+    except (OSError, ValueError, KeyError, TypeError):  # the run's own reader reports a bad run.json
+        return lines
+    recoveries = metadata.get("hand_recoveries") or []
+    if recoveries:
+        lines.append(
+            f"the hand driver recovered {len(recoveries)} cycle(s) (run.json: metadata.hand_recoveries); "
+            f"first: {recoveries[0]}"
+        )
+    return lines
 
 
 def default_run_dir(experiment: str, object_name: str) -> Path:
@@ -270,6 +288,10 @@ def _stereo_pipeline(
     """The run's vision pipeline from the calibration copied into the run, or None without cameras."""
     if backend.stereo is None:
         return None
+    from twin.vision.calibration import StereoCalibration
+    from twin.vision.pipeline import StereoPipeline
+    from twin.vision.reconstruct import Rectifier
+
     path = files.get("stereo_calibration")
     if path is None:
         raise ConfigError(

@@ -212,6 +212,12 @@ class PathArg:
         if not stat.S_ISDIR(_mode(parent) or 0):
             raise argparse.ArgumentTypeError(f"{path}: no such directory {parent}")
 
+    def _out_file_tree(self, path: Path) -> None:
+        mode = _mode(path)
+        if mode is not None and stat.S_ISDIR(mode):
+            raise argparse.ArgumentTypeError(f"{path}: is a directory")
+        _parent_is_dir(path)
+
 
 def _parent_is_dir(path: Path) -> None:
     """The nearest existing ancestor of path must be a directory (else it can never be created)."""
@@ -242,9 +248,10 @@ def new_dir() -> PathArg:
     return PathArg("new_dir")
 
 
-def out_file() -> PathArg:
-    """argparse type: a file to write, in an existing directory (overwriting is the command's call)."""
-    return PathArg("out_file")
+def out_file(make_parents: bool = False) -> PathArg:
+    """argparse type: a file to write, in an existing directory (overwriting is the command's call);
+    `make_parents`: or in one the command creates (no file in the way)."""
+    return PathArg("out_file_tree" if make_parents else "out_file")
 
 
 def run_dir() -> PathArg:

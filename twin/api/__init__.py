@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import re
 import sys
+import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from twin.interface.backend import Backend
 from twin.interface.devices import HandCommand, HandReading
-from twin.interface.errors import ConfigError
+from twin.interface.errors import ConfigError, RunWarning
 from twin.recording import Run, open_run
 from twin.safety import SafetyLayer, SafetyLimits
 from twin.session import RunOutcome, default_run_dir
@@ -37,6 +38,7 @@ __all__ = [
     "HandReading",
     "Run",
     "RunOutcome",
+    "RunWarning",
     "SafetyLimits",
     "compress",
     "foam",
@@ -210,6 +212,16 @@ _PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
 """A name that may become part of a run directory's name: never a path, never hidden."""
 
 
+def _warn_completed(outcome: RunOutcome) -> RunOutcome:
+    """Each of a complete run's warnings (twin.session.completion_warnings) as a RunWarning at the
+    caller's line: a hardware loop at half its rate must not pass silently. Returns `outcome`."""
+    from twin.session import completion_warnings
+
+    for line in completion_warnings(outcome):
+        warnings.warn(line, RunWarning, stacklevel=3)  # 1: here, 2: twin.run/compress/free, 3: the caller
+    return outcome
+
+
 def _check_duration(duration_s: object) -> float:
     """A run length as the CLI takes it (finite, at least 1 ms, at most a day), before anything exists."""
     return float(check_number(duration_s, "duration_s", min=MIN_DURATION_S, max=DAY_S))
@@ -247,7 +259,7 @@ def run(
     experiment: dict[str, Any] = {"name": name, "object": what}
     if parameters:
         experiment["parameters"] = dict(parameters)
-    return run_experiment(
+    outcome = run_experiment(
         backend=backend,
         controller=_Procedure(controller, phases[0]),
         phases=tuple(phases),
@@ -258,6 +270,7 @@ def run(
         argv=list(sys.argv),
         safety=None if safety is None else SafetyLayer(safety),
     )
+    return _warn_completed(outcome)
 
 
 def compress(
@@ -279,7 +292,7 @@ def compress(
 
     duration_s = _check_duration(duration_s)
     what = _object_name(backend, object_name)
-    return run_compress(
+    outcome = run_compress(
         backend,
         _out_dir(out, "compress", what),
         duration_s=duration_s,
@@ -290,6 +303,7 @@ def compress(
         stereo_box=stereo_box,
         shape_model=shape_model,
     )
+    return _warn_completed(outcome)
 
 
 def free(
@@ -306,7 +320,7 @@ def free(
     from twin.experiments.free_motion import run_free_motion
 
     duration_s = _check_duration(duration_s)
-    return run_free_motion(
+    outcome = run_free_motion(
         backend,
         _out_dir(out, "free", "none"),
         duration_s=duration_s,
@@ -314,3 +328,4 @@ def free(
         progress=progress,
         argv=argv if argv is not None else list(sys.argv),
     )
+    return _warn_completed(outcome)

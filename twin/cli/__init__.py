@@ -67,7 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `twin` console script."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    from twin import rendering
+
+    # twin renders only through twin.rendering, on EGL (or MUJOCO_GL's choice): MuJoCo's default
+    # context stays off, so a run without cameras loads no OpenGL.
+    rendering.disable_default_context()
     # Rerun's own log lines (e.g. its file sink on a full disk) would follow the one error line: the
     # CLI says what failed itself. RUST_LOG set by the user still wins.
     os.environ.setdefault("RUST_LOG", "off")

@@ -28,7 +28,7 @@ def fail(message: str) -> int:
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
     """--help lines end with the option's default where it has one worth showing (not None or False),
-    unless the help already names it."""
+    unless the help already names it; a list default reads as it is typed (`a b`, not `['a', 'b']`)."""
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
@@ -42,7 +42,12 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
             or action.nargs == 0
         ):
             return action.help
-        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+        shown = (
+            " ".join(str(v) for v in default).replace("%", "%%")
+            if isinstance(default, list | tuple)
+            else "%(default)s"
+        )
+        return f"{text} (default: {shown})" if text else f"(default: {shown})"
 
 
 class TwinArgumentParser(argparse.ArgumentParser):
@@ -149,18 +154,12 @@ def run_metadata(path: Path, flag: str) -> dict:
 def print_completion(outcome) -> dict:  # noqa: ANN001 - twin.session.RunOutcome, imported lazily
     """'run complete' on stdout; on stderr each of the run's warnings (a loop that missed its rate) and
     how many hand cycles the driver recovered (each is listed in run.json). Returns run.json's metadata."""
+    from twin.session import completion_warnings
+
     print(f"run complete: {outcome.run_dir}  ({outcome.result.samples.get('hand', 0)} hand samples)")
-    for warning in outcome.warnings:
+    for warning in completion_warnings(outcome):
         print(f"twin: warning: {warning}", file=sys.stderr)
-    meta = json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
-    recoveries = meta.get("hand_recoveries") or []
-    if recoveries:
-        print(
-            f"twin: warning: the hand driver recovered {len(recoveries)} cycle(s) "
-            f"(run.json: metadata.hand_recoveries); first: {recoveries[0]}",
-            file=sys.stderr,
-        )
-    return meta
+    return json.loads((outcome.run_dir / "run.json").read_text())["metadata"]
 
 
 def surface_summary(truth: dict) -> str:

@@ -12,8 +12,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Declare the command and its options."""
     p = sub.add_parser("compare", help="compare two runs of one scenario (e.g. sim vs hardware)")
     p.add_argument("run_a", type=run_dir(), metavar="DIR_A", help="reference run (e.g. the sim backend's)")
-    p.add_argument("run_b", type=run_dir(), metavar="DIR_B")
-    p.add_argument("--json", action="store_true")
+    p.add_argument(
+        "run_b", type=run_dir(), metavar="DIR_B", help="the run compared with it (e.g. the hardware's)"
+    )
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

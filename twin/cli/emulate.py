@@ -25,7 +25,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
     p.add_argument("--seed", type=seed(), default=0, help="seed of the twin's sensor noise")
     p.add_argument(
-        "--rig-file", type=out_file(), metavar="FILE", help="write a rig.toml pointing here (rig: always)"
+        "--rig-file",
+        type=out_file(make_parents=True),
+        metavar="FILE",
+        help="write a rig.toml pointing here, and its calibration files beside it, creating the directory "
+        "(rig: always; default: a temporary directory)",
     )
     p.add_argument(
         "--duration", type=duration(), metavar="S", help="stop after S seconds, up to a day (default: Ctrl-C)"
@@ -97,6 +101,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             print(f"cameras: {left}  {right}  (MJPEG over HTTP, 320x240 at {rate:g} fps)", flush=True)
         print(f"rig file: {emulator.write_rig_file(args.rig_file)}", flush=True)
     elif args.rig_file:
+        args.rig_file.parent.mkdir(parents=True, exist_ok=True)
         args.rig_file.write_text(rig_toml(address, baud=args.baud))
         print(f"rig file: {args.rig_file}", flush=True)
     print("ready; Ctrl-C stops", flush=True)

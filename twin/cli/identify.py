@@ -19,7 +19,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--free", type=run_dir(), metavar="FREE_RUN", help="a `twin run free` run: the hand's own terms"
     )
-    p.add_argument("--model", choices=("kelvin-voigt", "hunt-crossley"), default="kelvin-voigt")
+    p.add_argument(
+        "--model",
+        choices=("kelvin-voigt", "hunt-crossley"),
+        default="kelvin-voigt",
+        help="the fingertip pads' reaction model R(δ, δ̇) fitted in eq. 4",
+    )
     p.add_argument("--json", action="store_true", help="also print the results file")
     p.add_argument("--out", type=out_dir(), metavar="DIR", help="where the results go (default RUN/identify)")
     p.add_argument(

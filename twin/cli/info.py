@@ -14,8 +14,12 @@ from twin.validation import check_run_metadata, experiment_name, run_dir
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Declare the command and its options."""
     p = sub.add_parser("info", help="summarize a run directory")
-    p.add_argument("run_dir", type=run_dir(), metavar="DIR")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("run_dir", type=run_dir(), metavar="DIR", help="a run directory (one holding a run.json)")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the summary as JSON: status, streams with their rates and units, metadata",
+    )
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from typing import TYPE_CHECKING
 
 from twin.cli.common import (
@@ -14,7 +15,7 @@ from twin.cli.common import (
     surface_summary,
     with_progress,
 )
-from twin.interface.errors import ConfigError
+from twin.interface.errors import ConfigError, RunWarning
 from twin.validation import existing_dir, existing_file
 
 if TYPE_CHECKING:
@@ -27,7 +28,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run an experiment")
     run_sub = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     c = run_sub.add_parser("compress", help="grasp, balance, then periodic compression (paper §6.2)")
-    c.add_argument("--object", default="block", help="library object (see `twin objects`)")
+    c.add_argument(
+        "--object",
+        help="library object, see `twin objects` (default: block); on hardware the object in the hand, as "
+        "the run records it for `twin fit` (default there: none named)",
+    )
     c.add_argument(
         "--object-mesh",
         type=existing_file(),
@@ -68,13 +73,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_run_options(f, duration_s=20.0)
 
 
+_FOAM_FLAGS = [
+    ("--object-mesh", "object_mesh"),
+    ("--young", "young"),
+    ("--poisson", "poisson"),
+    ("--damping", "damping"),
+    ("--density", "density"),
+    ("--size-mm", "size_mm"),
+    ("--placement-mm", "placement_mm"),
+    ("--fidelity", "fidelity"),
+    ("--resolution", "resolution"),
+    ("--dof", "dof"),
+    ("--friction", "friction"),
+]
+"""The options that shape the twin's foam (add_foam_overrides, --object-mesh): (flag, dest)."""
+
+
 def _foam_from_args(args: argparse.Namespace) -> FoamParams:
     """The object of `twin run compress`: --object with its overrides (mm on the command line, m in the
     API), or --object-mesh with --object's material."""
     from twin import api
 
     return api.foam(
-        args.object,
+        args.object or "block",
         mesh=getattr(args, "object_mesh", None),
         mesh_scale_m=getattr(args, "mesh_scale", 0.001),
         young_pa=args.young,
@@ -114,7 +135,17 @@ def cmd_compress(args: argparse.Namespace) -> int:
     from twin import api
 
     foam = _foam_from_args(args)
-    shape_model = None if args.predict is None else api.load_shape_model(args.predict, foam.name)
+    # On hardware the run records the object the researcher named (twin fit reads it), never a default,
+    # and nothing the hand cannot hold: the overrides shape only the twin's foam.
+    object_name = foam.name if args.backend == "sim" or args.object is not None else None
+    if args.backend == "hardware":
+        given = [flag for flag, dest in _FOAM_FLAGS if getattr(args, dest, None) is not None]
+        if given:
+            raise ConfigError(
+                f"{', '.join(given)}: the twin's foam only; a hardware run records the object's name "
+                "(--object) and `twin fit`/`twin identify` take its size"
+            )
+    shape_model = None if args.predict is None else api.load_shape_model(args.predict, object_name)
     if (args.bbox is not None or args.stereo_calibration is not None) and not args.cameras:
         raise ConfigError("--bbox and --stereo-calibration need --cameras")
     box = None
@@ -123,20 +154,22 @@ def cmd_compress(args: argparse.Namespace) -> int:
 
         box = parse_box(args.bbox)
     backend = _backend(args, foam, cameras=args.cameras)
-    outcome = with_progress(
-        args.duration,
-        not args.no_progress,
-        lambda progress: api.compress(
-            backend,
-            duration_s=args.duration,
-            out=args.out,
-            object_name=foam.name,
-            progress=progress,
-            stereo_box=box,
-            shape_model=shape_model,
-            argv=sys.argv,
-        ),
-    )
+    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
+        warnings.simplefilter("ignore", RunWarning)
+        outcome = with_progress(
+            args.duration,
+            not args.no_progress,
+            lambda progress: api.compress(
+                backend,
+                duration_s=args.duration,
+                out=args.out,
+                object_name=object_name,
+                progress=progress,
+                stereo_box=box,
+                shape_model=shape_model,
+                argv=sys.argv,
+            ),
+        )
     truth = print_completion(outcome).get("stereo_truth")
     if truth:
         print(f"reconstruction vs the twin's truth: {surface_summary(truth)}")
@@ -149,13 +182,15 @@ def cmd_free(args: argparse.Namespace) -> int:
     from twin import api
 
     backend = _backend(args, None)
-    outcome = with_progress(
-        args.duration,
-        not args.no_progress,
-        lambda progress: api.free(
-            backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
-        ),
-    )
+    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
+        warnings.simplefilter("ignore", RunWarning)
+        outcome = with_progress(
+            args.duration,
+            not args.no_progress,
+            lambda progress: api.free(
+                backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
+            ),
+        )
     print_completion(outcome)
     print(f"use it: twin identify RUN --free {outcome.run_dir}")
     return 0

@@ -20,7 +20,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--trajectories", type=integer(1, 100_000), default=16, metavar="N", help="trajectories per object"
     )
     p.add_argument("--workers", type=WORKERS, default=2, metavar="K", help="trajectories run in parallel")
-    p.add_argument("--executor", choices=("local", "ray"), default="local")
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="where the trajectories run: processes on this machine, or a Ray cluster",
+    )
     p.add_argument("--address", help="ray: the cluster's address (default: a local Ray instance)")
     p.add_argument(
         "--duration",
@@ -35,7 +40,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also keep the fused 3-D surface as heights on a hand-frame grid (about twice the cost)",
     )
-    p.add_argument("--seed", type=seed(), default=0)
+    p.add_argument(
+        "--seed",
+        type=seed(),
+        default=0,
+        help="seed of the trajectories and their sensor noise: the same seed gives the same dataset",
+    )
     p.add_argument(
         "--out", type=out_dir(), required=True, metavar="DATASET", help="dataset directory (resumable)"
     )

@@ -39,7 +39,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="DIR",
         help="where the model goes (default DATASET/models/OBJECT for the hull, OBJECT-TARGET otherwise)",
     )
-    p.add_argument("--epochs", type=integer(1, 10_000_000), default=3000)
+    p.add_argument(
+        "--epochs",
+        type=integer(1, 10_000_000),
+        default=3000,  # twin.shape.train.EPOCHS (that module imports torch)
+        help="full-batch training epochs of every network trained",
+    )
     p.add_argument(
         "--folds",
         type=integer(2, 100_000),
@@ -54,7 +59,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="F",
         help="score on one held-out fraction F of the trajectories instead (3-D variant: 0.25 by default)",
     )
-    p.add_argument("--seed", type=seed(), default=0)
+    p.add_argument(
+        "--seed",
+        type=seed(),
+        default=0,
+        help="seed of the networks' initial weights and of the folds' shuffle",
+    )
     p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
 
 

@@ -14,19 +14,34 @@ import tempfile
 from pathlib import Path
 
 from twin.cli.common import fail
-from twin.validation import existing_dir
+from twin.validation import existing_dir, integer
 
 WEB_VIEWER_PORT = 9090
 """Rerun's web viewer (HTTP) port, its default."""
 GRPC_PORT = 9876
 """Rerun's gRPC server port (the recordings), its default."""
 APPLICATION_ID = "barrett_twin"
+PORT = integer(1, 65535)
+"""A TCP port."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Declare the command and its options."""
     p = sub.add_parser("view", help="open a run in the Rerun viewer")
-    p.add_argument("run_dir", type=existing_dir(), metavar="DIR")
+    p.add_argument("run_dir", type=existing_dir(), metavar="DIR", help="a run directory (holding run.rrd)")
+    p.add_argument(
+        "--port",
+        type=PORT,
+        default=GRPC_PORT,
+        help="Rerun's gRPC port: the native viewer's server, or (headless) the server of the recording",
+    )
+    p.add_argument(
+        "--web-viewer-port",
+        type=PORT,
+        default=WEB_VIEWER_PORT,
+        metavar="PORT",
+        help="headless: the port the web viewer is served on (HTTP)",
+    )
 
 
 def view_files(run_dir: Path, blueprint_path: Path) -> list[str]:
@@ -42,21 +57,34 @@ def view_files(run_dir: Path, blueprint_path: Path) -> list[str]:
     return [str(rrd), *sorted(str(p) for p in run_dir.glob("*/*.rrd")), str(blueprint_path)]
 
 
-def web_instructions(files: list[str]) -> list[str]:
+def web_instructions(
+    files: list[str], web_port: int = WEB_VIEWER_PORT, grpc_port: int = GRPC_PORT
+) -> list[str]:
     """What to run without a display: the web viewer here, a tunnel from the user's machine."""
     quoted = " ".join(shlex.quote(f) for f in files)
     host = socket.gethostname() or "THIS_HOST"
     return [
         "No display here. Serve the recording to a browser from this machine:",
         f"  {shlex.quote(sys.executable)} -m rerun --serve-web {quoted} "
-        f"--web-viewer-port {WEB_VIEWER_PORT} --port {GRPC_PORT}",
+        f"--web-viewer-port {web_port} --port {grpc_port}",
         "then, on your own machine, forward both ports and open the viewer:",
-        f"  ssh -N -L {WEB_VIEWER_PORT}:localhost:{WEB_VIEWER_PORT} -L {GRPC_PORT}:localhost:{GRPC_PORT} "
+        f"  ssh -N -L {web_port}:localhost:{web_port} -L {grpc_port}:localhost:{grpc_port} "
         f"{getpass.getuser()}@{host}",
-        f"  http://localhost:{WEB_VIEWER_PORT}/?url=rerun%2Bhttp://localhost:{GRPC_PORT}/proxy",
+        f"  http://localhost:{web_port}/?url=rerun%2Bhttp://localhost:{grpc_port}/proxy",
         "(the address the command prints is the one to open if it differs). Or copy the run directory to a "
         "machine with a display and run `twin view` there.",
     ]
+
+
+def port_in_use(port: int) -> bool:
+    """Whether something on this machine already listens on TCP `port` (a bind to it fails)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # a closed socket's TIME_WAIT is free
+        try:
+            probe.bind(("", port))
+        except OSError:
+            return True
+    return False
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -69,7 +97,15 @@ def cmd_view(args: argparse.Namespace) -> int:
     has_display = (
         sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
     )
-    if not has_display:  # the blueprint must outlive this process: in a private directory of its own
+    if not has_display:  # the printed command would fail on a taken port: say so now, in one line
+        if args.port == args.web_viewer_port:
+            return fail(
+                f"--port and --web-viewer-port are both {args.port}: the server and the viewer need one each"
+            )
+        for flag, port in (("--port", args.port), ("--web-viewer-port", args.web_viewer_port)):
+            if port_in_use(port):
+                return fail(f"port {port} is in use on this machine: pick a free one with {flag} PORT")
+        # The blueprint must outlive this process: in a private directory of its own.
         private = Path(tempfile.mkdtemp(prefix="twin-view-"))  # mode 0700, a name nobody can plant
         blueprint = private / f"{args.run_dir.resolve().name or 'run'}.rbl"
         try:
@@ -77,7 +113,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         except Exception as exc:  # an unreadable .rrd: one line
             shutil.rmtree(private, ignore_errors=True)
             return fail(f"cannot read {rrd}: {exc}")
-        print("\n".join(web_instructions(files)))
+        print("\n".join(web_instructions(files, args.web_viewer_port, args.port)))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         try:
@@ -85,7 +121,8 @@ def cmd_view(args: argparse.Namespace) -> int:
         except Exception as exc:
             return fail(f"cannot read {rrd}: {exc}")
         viewer = shutil.which("rerun")
-        cmd = [viewer, *files] if viewer else [sys.executable, "-m", "rerun", *files]
+        port = ["--port", str(args.port)]
+        cmd = [viewer, *port, *files] if viewer else [sys.executable, "-m", "rerun", *port, *files]
         return subprocess.call(cmd)
 
 

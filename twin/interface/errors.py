@@ -31,3 +31,8 @@ class RunDirectoryLostError(TwinError):
 
 class WorkerLostError(TwinError):
     """A worker process of a parallel computation ended abruptly (killed, or out of memory)."""
+
+
+class RunWarning(UserWarning):
+    """A run that completed, but not quite as declared: a hardware hand loop below its rate, or hand
+    cycles the driver had to recover. The API warns with it (`warnings.warn`); the CLI prints the line."""

@@ -21,7 +21,7 @@ import numpy as np
 import pyarrow as pa
 
 from twin.interface.errors import TwinError
-from twin.recording.schema import TIME_FIELD, StreamSpec, arrow_schema, to_numpy
+from twin.recording.schema import RAGGED, TIME_FIELD, StreamSpec, arrow_schema, to_numpy
 from twin.recording.writer import DIGEST, FORMAT, FORMAT_VERSION, RUN_FILE, STREAM_SUFFIX, STREAMS_DIR
 
 
@@ -49,6 +49,26 @@ class StreamData:
 
     def __len__(self) -> int:
         return len(self.t_s)
+
+    def __repr__(self) -> str:
+        """The stream at a glance, not its data: name, samples, time span and rate, then one line per
+        column with its shape (n, ...; `k` a per-sample length), dtype, unit and kind."""
+        n, spec = len(self.t_s), self.spec
+        span = f"{n} samples, t = {self.t_s[0]:.3f} to {self.t_s[-1]:.3f} s" if n else "no samples"
+        rate = self.measured_rate_hz()
+        measured = f", {rate:.3g} Hz" if math.isfinite(rate) else ""
+        rows = [(TIME_FIELD, f"({n},)", "float64", "s", "time")]
+        for name in self.fields:
+            f = spec.fields[name]
+            dims = ", ".join("k" if d == RAGGED else str(d) for d in f.shape)
+            rows.append((name, f"({n}, {dims})" if dims else f"({n},)", f.dtype, f.unit, f.kind))
+        widths = [max(len(row[i]) for row in rows) for i in range(4)]
+        lines = [f"StreamData {spec.name!r}: {span}{measured} (declared {spec.rate_hz:g} Hz)"]
+        lines += [
+            "  " + "  ".join(v.ljust(w) for v, w in zip(row, [*widths, 0], strict=True)).rstrip()
+            for row in rows
+        ]
+        return "\n".join(lines)
 
     def measured_rate_hz(self) -> float:
         """Mean sample rate (n-1)/(t[-1]-t[0]); nan with fewer than 2 samples or zero duration."""

@@ -1,5 +1,1 @@
-"""MuJoCo simulation backend. Headless by default: MUJOCO_GL=egl unless the caller chose one."""
-
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
+"""MuJoCo simulation backend. Renders through EGL unless MUJOCO_GL names another (twin.rendering)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import mujoco
 import numpy as np
@@ -15,15 +15,16 @@ from twin.interface.hand_spec import HandConfig
 from twin.interface.stereo_spec import StereoConfig
 from twin.interface.tactile_spec import TactileConfig
 from twin.kinematics import HAND_FRAME_BODY
-from twin.sim.cameras import LEFT_CAMERA, CameraPlacement, SimStereo, camera_pose_cv
 from twin.sim.foam import FoamParams
 from twin.sim.hand import SimHand
 from twin.sim.scene import build_model
-from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth, score_against
 from twin.sim.tactile import SimTactile, SimTactileSensor, contact_frame_forces
 from twin.sim.world import DEFAULT_HINT, SimWorld
-from twin.vision.calibration import StereoCalibration
-from twin.vision.reconstruct import Box, Rectifier
+
+if TYPE_CHECKING:  # the cameras and the vision stack are imported only by a backend with cameras
+    from twin.sim.cameras import CameraPlacement, SimStereo
+    from twin.sim.surface_truth import SurfaceScorer, SurfaceTruth
+    from twin.vision.reconstruct import Box, Rectifier
 
 FINGERS = (1, 2, 3)
 STEREO_CALIBRATION_FILE = "stereo_calibration.json"
@@ -90,6 +91,8 @@ class SimBackend(Backend):
         (BENCHMARKS.md), and the direct render reconstructs as accurately (block, 10 s: median 0.32
         vs 0.36 mm, coverage 72 vs 69 %)."""
         if stereo_calibration_file is not None:
+            from twin.vision.calibration import StereoCalibration
+
             StereoCalibration.load(stereo_calibration_file)  # a bad file fails here, before any run
         self.stereo_calibration_file = stereo_calibration_file
         self.foam = foam
@@ -109,16 +112,16 @@ class SimBackend(Backend):
             if tactile
             else None
         )
-        self.stereo = (
-            SimStereo(
+        self.stereo: SimStereo | None = None
+        if stereo:
+            from twin.sim.cameras import SimStereo
+
+            self.stereo = SimStereo(
                 self.world,
                 stereo_config or StereoConfig(),
                 np.random.default_rng([seed, 2]),
                 render_native=stereo_render_native,
             )
-            if stereo
-            else None
-        )
         self._scorer: SurfaceScorer | None = None
         self._clock = SimClock(self.world)
         m = self.world.model
@@ -171,6 +174,8 @@ class SimBackend(Backend):
         first frame (None without foam or cameras)."""
         if self.foam is None or self.stereo is None:
             return None
+        from twin.sim.cameras import LEFT_CAMERA, camera_pose_cv
+
         m, d = self.world.model, self.world.data
         mujoco.mj_forward(m, d)  # vertex positions of a world not stepped yet; time does not move
         vertices = np.asarray(d.flexvert_xpos, dtype=float)
@@ -188,6 +193,8 @@ class SimBackend(Backend):
         """The foam's visible pixels and rendered surface now (twin.sim.surface_truth)."""
         if self.foam is None or self.stereo is None:
             return None
+        from twin.sim.surface_truth import SurfaceScorer
+
         if self._scorer is None or self._scorer.rectifier is not rectifier:
             if self._scorer is not None:
                 self._scorer.close()
@@ -201,6 +208,8 @@ class SimBackend(Backend):
         and each point's distance (`point_error_mm`, for the viewer; not a recorded field)."""
         if truth is None:
             return None
+        from twin.sim.surface_truth import score_against
+
         score = score_against(truth, points_hand, pixels)
         return {
             "median_mm": score.median_mm,
@@ -236,6 +245,8 @@ class SimBackend(Backend):
             directory.mkdir(parents=True, exist_ok=True)
             path = directory / STEREO_CALIBRATION_FILE
             if self.stereo_calibration_file is not None:
+                from twin.vision.calibration import StereoCalibration
+
                 StereoCalibration.load(self.stereo_calibration_file).save(path)
             else:
                 mujoco.mj_kinematics(self.world.model, self.world.data)  # camera poses before any step

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from twin.interface.devices import StereoCamera, StereoFrame
 from twin.interface.specs import DeviceSpec
 from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
+from twin.rendering import renderer
 from twin.sim.world import SimWorld
 from twin.vision.calibration import CameraIntrinsics, StereoCalibration
 
@@ -338,7 +339,7 @@ class SimStereo(StereoCamera):
     def _connect(self) -> None:
         c = self.config
         w, h = (c.native_width, c.native_height) if self.render_native else (c.width, c.height)
-        self._renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+        self._renderer = renderer(self.world.model, height=h, width=w)
 
     def _disconnect(self) -> None:
         if self._renderer is not None:
@@ -376,7 +377,7 @@ class SimStereo(StereoCamera):
         if self._thread_renderer is None:  # the GL context lives on this thread
             c = self.config
             w, h = (c.native_width, c.native_height) if self.render_native else (c.width, c.height)
-            self._thread_renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+            self._thread_renderer = renderer(self.world.model, height=h, width=w)
         left = self._render_with(self._thread_renderer, data, LEFT_CAMERA)
         right = self._render_with(self._thread_renderer, data, RIGHT_CAMERA)
         return StereoFrame(t_s=t_s, left=self._add_noise(left, k_left), right=self._add_noise(right, k_right))

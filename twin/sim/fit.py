@@ -35,7 +35,7 @@ from twin.interface.devices import TAXEL_COUNT_MAX
 from twin.interface.errors import ConfigError, SimulationUnstableError
 from twin.processes import worker_pool
 from twin.recording.reader import Run
-from twin.sim.foam import FoamParams
+from twin.sim.foam import LIBRARY, FoamParams
 from twin.sim.replay import Commands, Replay, replay
 from twin.tactile.layout import FINGERTIP_PADS, LAYOUT
 from twin.validation import check_run_metadata
@@ -87,12 +87,20 @@ def _identified_young_pa(path: Path, foam: FoamParams | None, workers: int) -> f
 
 
 def foam_of_run(run: Run) -> FoamParams:
-    """The foam described by the run's metadata (or the researcher's shape and size on hardware)."""
+    """The foam described by the run's metadata: the sim's full record, else the library object the
+    run was told it held (a hardware run's `object_name`, from `twin.compress`/`twin.run`)."""
     obj = run.metadata.get("object")
     if not obj:
-        raise FitError(
-            f"{run.path}: the run does not describe its object; name it with --object (and --size-mm)"
+        experiment = run.metadata.get("experiment")
+        named = experiment.get("object") if isinstance(experiment, dict) else None
+        if isinstance(named, str) and named in LIBRARY:
+            return LIBRARY[named]
+        said = (  # "none": an empty hand (a free run); "unnamed": a run told nothing (twin.api)
+            f"names its object {named!r}, not a library object"
+            if named and named not in ("none", "unnamed")
+            else "does not describe its object"
         )
+        raise FitError(f"{run.path}: the run {said}; name it with --object (and --size-mm)")
     keys = set(FoamParams.__dataclass_fields__)
     given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in obj.items() if k in keys}
     try:
@@ -289,7 +297,8 @@ def fit_run(
         start_from = "given" if "young_pa" in (initial or {}) else "scan"
         start["young_pa"] = (initial or {}).get("young_pa", START["young_pa"])
         if start_from == "scan":  # twin identify's estimate, where it has one
-            identified = _identified_young_pa(run.path, foam, workers)
+            named_only = foam is None and not run.metadata.get("object")  # the library object it named
+            identified = _identified_young_pa(run.path, base if named_only else foam, workers)
             if identified is not None:
                 start["young_pa"], start_from = identified, "identify"
     truth = dict(described) if run.metadata.get("backend") == "sim" else {}

@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from twin.rendering import renderer
 from twin.sim.cameras import FOAM_NAME, HAND_BODY, LEFT_CAMERA
 from twin.vision.reconstruct import Reconstruction, Rectifier
 
@@ -278,7 +279,7 @@ class SurfaceScorer:
         self.flex_id = _flex_id(model, flex)
         self.hand_from_world = None if hand_from_world is None else np.asarray(hand_from_world, float)
         w, h = rectifier.image_size
-        self._renderer: mujoco.Renderer | None = mujoco.Renderer(model, height=h, width=w)
+        self._renderer: mujoco.Renderer | None = renderer(model, height=h, width=w)
         self._renderer.enable_segmentation_rendering()
 
     def close(self) -> None:

@@ -79,3 +79,44 @@ def test_bad_fit_input_is_one_line(argv, message, sphere_run, capsys):
     assert main([a.format(run=sphere_run) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+
+
+def test_fit_takes_the_object_an_api_hardware_run_named(tmp_path, capsys):
+    """twin.compress(hardware_backend(...), object_name="block") records the name only (the hand cannot
+    report its object): the fit puts the library's block in the twin; a name the library does not hold
+    is refused in one line that says what to do."""
+    import twin
+    from twin.sim.foam import LIBRARY
+
+    outcome = twin.compress(
+        twin.hardware_backend(hand="bh8emu://?object=block"),
+        duration_s=0.3,
+        out=tmp_path / "hw",
+        object_name="block",
+    )
+    run = Run(outcome.run_dir)
+    assert run.metadata.get("object") is None and run.metadata["experiment"]["object"] == "block"
+    assert foam_of_run(run) == LIBRARY["block"]
+    info = json.loads((outcome.run_dir / "run.json").read_text())
+    info["metadata"]["experiment"]["object"] = "mystery"
+    (outcome.run_dir / "run.json").write_text(json.dumps(info))
+    assert main(["fit", str(outcome.run_dir), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.count("\n") == 1
+        and "names its object 'mystery', not a library object; name it with --object" in err
+    )
+
+
+def test_a_cli_hardware_run_records_only_an_object_it_was_told(tmp_path, capsys):
+    """No --object on hardware: the run names none (not --object's sim default), so `twin fit` asks for
+    one; the foam's overrides are the twin's only, refused on hardware in one line."""
+    hand = ["run", "compress", "--backend", "hardware", "--hand", "bh8emu://?object=block", "--no-progress"]
+    assert main([*hand, "--young", "45e3", "--size-mm", "55", "55", "70", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("twin: error: --young, --size-mm: the twin's foam only;") and err.count("\n") == 1
+    assert not (tmp_path / "x").exists()
+    assert main([*hand, "--duration", "0.3", "--out", str(tmp_path / "hw")]) == 0
+    assert Run(tmp_path / "hw").metadata["experiment"]["object"] == "unnamed"
+    with pytest.raises(FitError, match="does not describe its object"):
+        foam_of_run(Run(tmp_path / "hw"))

@@ -399,3 +399,43 @@ def test_ragged_fields_round_trip_across_batches_with_empty_rows(tmp_path):
     np.testing.assert_array_equal(data["count"], [5, 0, 1, 400])
     with pytest.raises(ValueError, match="ragged"):
         FieldSpec("m", (3, RAGGED))
+
+
+def test_a_stream_prints_as_a_summary_not_its_arrays(tmp_path):
+    """print(run.stream(...)): name, samples, time span and rate, one line per column with its shape
+    (n, per-sample shape), dtype, unit and kind; no array data, however long the stream."""
+    write_two_rate_run(tmp_path / "run", seconds=10.0)
+    hand = open_run(tmp_path / "run").stream("hand")
+    lines = str(hand).splitlines()
+    assert repr(hand) == str(hand)
+    assert lines[0] == "StreamData 'hand': 300 samples, t = 0.000 to 9.967 s, 30 Hz (declared 30 Hz)"
+    assert [line.split() for line in lines[1:]] == [
+        ["t_s", "(300,)", "float64", "s", "time"],
+        ["position_counts", "(300,", "4)", "int32", "counts", "raw"],
+        ["torque_nm", "(300,", "3)", "float64", "N*m", "physical"],
+        ["broken_away", "(300,", "3)", "bool", "1", "truth"],
+        ["contact_xyz", "(300,", "2,", "3)", "float32", "m", "truth"],
+    ]
+    assert len(str(hand)) < 600
+
+
+def test_a_ragged_or_empty_stream_prints_its_shape_and_no_span(tmp_path):
+    points = StreamSpec(
+        name="cloud", rate_hz=30.0, fields={"points_m": FieldSpec(unit="m", shape=(RAGGED, 3))}
+    )
+    with RunWriter(tmp_path / "run", {}) as w:
+        w.add_stream(points)
+        w.add_stream(SCALAR)
+        for i in range(3):
+            w.append("cloud", i / 30, {"points_m": np.zeros((i + 1, 3))})
+    run = open_run(tmp_path / "run")
+    assert str(run.stream("cloud")).splitlines()[-1].split() == [
+        "points_m",
+        "(3,",
+        "k,",
+        "3)",
+        "float64",
+        "m",
+        "physical",
+    ]
+    assert str(run.stream("s")).splitlines()[0] == "StreamData 's': no samples (declared 10 Hz)"

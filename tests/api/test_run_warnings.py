@@ -1,0 +1,68 @@
+"""A run that completed, but not as declared, tells a Python caller with `warnings.warn` (a RunWarning at
+the caller's line), and the `twin` command prints each such warning once, as its own one line."""
+
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+
+import twin
+from twin import HandReading
+
+
+def _slow(reading: HandReading) -> None:
+    """60 ms a reading: a 30 Hz hand loop cannot keep its rate (keeps the hand's last command)."""
+    time.sleep(0.06)
+
+
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation
+def test_a_hardware_loop_below_its_rate_warns_the_caller(tmp_path: Path):
+    with pytest.warns(twin.RunWarning) as caught:
+        outcome = twin.run(
+            twin.hardware_backend(hand="bh8emu://?object=block"), _slow, duration_s=1, out=tmp_path
+        )
+    assert outcome.status == "complete"
+    (warning,) = caught
+    assert str(warning.message).startswith("hand loop ran at ") and "of 30 Hz" in str(warning.message)
+    assert [str(warning.message)] == outcome.warnings == twin.open_run(tmp_path).warnings
+    assert warning.filename == __file__  # points at the caller's line, not into twin
+
+
+def test_a_run_as_declared_warns_nothing(tmp_path: Path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", twin.RunWarning)
+        outcome = twin.compress(twin.sim_backend("block"), duration_s=0.2, out=tmp_path)
+    assert outcome.status == "complete" and outcome.warnings == []
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")
+def test_the_cli_prints_a_recovered_cycle_once_and_no_python_warning(tmp_path: Path):
+    # drop@31: the emulator swallows one reply and the driver recovers the cycle (a RunWarning from the
+    # API, which the command prints as its own line instead of Python's warning text).
+    argv = [
+        "run",
+        "compress",
+        "--backend",
+        "hardware",
+        "--hand",
+        "bh8emu://?faults=drop@31",
+        "--duration",
+        "2",
+    ]
+    result = subprocess.run(
+        [sys.executable, "-m", "twin", *argv, "--out", str(tmp_path / "hw"), "--no-progress"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONWARNINGS": "default"},
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("twin: warning: the hand driver recovered 1 cycle(s)"), (
+        lines
+    )

@@ -1,6 +1,6 @@
 """The hardware bridge on a busy machine: fault-free hardware runs against the emulator beside a CPU hog.
 
-`twin emulate hand` serves the BH8-262 on a pty (its own process, as in the README), two busy-loop
+`twin emulate hand` serves the BH8-262 on a pty (its own process, as in docs/cli.md), two busy-loop
 processes keep every core of a 2-core machine taken, and `twin run compress --backend hardware` runs N
 times, each in a fresh process. A run counts as complete when it exits 0 with status "complete"; the
 hand loop rate of a run is its recorded samples over the wall time they span (30 Hz asked).

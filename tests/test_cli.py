@@ -377,7 +377,7 @@ def test_emulate_refuses_a_rig_file_under_a_file_before_serving(tmp_path: Path):
 
 
 def test_emulate_writes_its_rig_file_into_a_new_directory(tmp_path: Path):
-    """The README's `twin emulate rig --rig-file runs/emu/rig.toml`, from a fresh clone: runs/emu is made."""
+    """docs/cli.md's `twin emulate rig --rig-file runs/emu/rig.toml`, from a fresh clone: runs/emu is made."""
     argv = ["emulate", "rig", "--rig-file", "runs/emu/rig.toml", "--no-cameras", "--duration", "0.5"]
     result = subprocess.run([*TWIN, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert result.returncode == 0, result.stderr

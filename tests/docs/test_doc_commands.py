@@ -284,3 +284,34 @@ def test_the_python_api_examples_run_as_written(tmp_path: Path, capsys):
     info = json.loads((tmp_path / "datasets/squeeze/meta/info.json").read_text())
     assert info["total_episodes"] == 2 and "observation.environment_state" in info["features"]
     assert (tmp_path / "tables/squeeze/hand.parquet").is_file()
+
+
+LINK = re.compile(r"\]\((?P<target>[^)\s]+)\)")
+
+
+def _anchors(page: Path) -> set[str]:
+    """The heading anchors GitHub gives a Markdown page (lower case, punctuation dropped, spaces to -)."""
+    text = re.sub(r"^```.*?^```$", "", page.read_text(), flags=re.M | re.S)
+    titles = re.findall(r"^#{1,6} (.+)$", text, flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", t.strip().lower()).replace(" ", "-") for t in titles}
+
+
+def test_every_link_in_the_readme_and_docs_leads_to_a_file_and_heading():
+    for page in PAGES:
+        for link in LINK.finditer(page.read_text()):
+            target = link["target"]
+            if target.startswith(("http://", "https://")):
+                continue
+            path, _, anchor = target.partition("#")
+            file = (page.parent / path).resolve() if path else page
+            assert file.exists(), f"{page.relative_to(ROOT)}: {target} leads nowhere"
+            assert not anchor or anchor in _anchors(file), f"{page.relative_to(ROOT)}: no heading #{anchor}"
+
+
+def test_the_readme_reaches_docs_early_and_keeps_the_set_up_commands_of_ci():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    first = next(n for n, line in enumerate(lines, 1) if "](docs/" in line)
+    assert first <= 150
+    bash = [c.text for c in commands(ROOT / "README.md") if c.lang == "bash"]
+    assert bash[1] in (ROOT / ".ci" / "run").read_text()  # the README's test command is what CI runs
+    assert bash[0].startswith("python3 -m venv .venv && .venv/bin/pip install -e '.[all]' && ")

@@ -144,11 +144,13 @@ def commands(page: Path) -> list[Command]:
 
 
 def _scratch(tmp_path: Path) -> dict[str, str]:
-    """tmp_path as a fresh clone sees it: .venv is this interpreter's environment; its bin on PATH."""
+    """tmp_path as a fresh clone on a headless machine sees it: .venv is this interpreter's environment,
+    its bin on PATH."""
     prefix = Path(sys.prefix)
     assert (prefix / "bin" / "activate").is_file(), f"the suite runs in a virtual environment, not {prefix}"
     (tmp_path / ".venv").symlink_to(prefix)
-    return {**os.environ, "PATH": f"{prefix / 'bin'}{os.pathsep}{os.environ['PATH']}"}
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}  # headless
+    return {**env, "PATH": f"{prefix / 'bin'}{os.pathsep}{os.environ['PATH']}"}
 
 
 class Server:

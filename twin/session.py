@@ -190,6 +190,12 @@ def run_experiment(
                     shape_model=shape_model,
                 )
                 result = rig.run(controller, duration_s, progress)
+                for line in result.warnings:  # in the viewer's log too, where the run's curves are
+                    recording.log_text(duration_s, line, level="WARN")
+                recoveries = backend.diagnostics().get("hand_recoveries") or []
+                if recoveries:
+                    line = f"the hand driver recovered {len(recoveries)} cycle(s); first: {recoveries[0]}"
+                    recording.log_text(duration_s, line, level="WARN")
             finally:
                 recording.close()
             for line in result.warnings:

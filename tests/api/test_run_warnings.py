@@ -30,6 +30,14 @@ def test_a_hardware_loop_below_its_rate_warns_the_caller(tmp_path: Path):
     assert str(warning.message).startswith("hand loop ran at ") and "of 30 Hz" in str(warning.message)
     assert [str(warning.message)] == outcome.warnings == twin.open_run(tmp_path).warnings
     assert warning.filename == __file__  # points at the caller's line, not into twin
+    # and in the viewer's log, as a warning row at the run's end
+    import rerun as rr
+
+    from twin.viz.rerun_log import _rows
+
+    text, level = rr.TextLog.descriptor_text().component, rr.TextLog.descriptor_level().component
+    rows = _rows(tmp_path / "run.rrd", "log", [text, level])
+    assert [c[text][0] for _, c in rows if c[level] == ["WARN"]] == [str(warning.message)]
 
 
 def test_a_run_as_declared_warns_nothing(tmp_path: Path):
@@ -66,3 +74,11 @@ def test_the_cli_prints_a_recovered_cycle_once_and_no_python_warning(tmp_path: P
     assert len(lines) == 1 and lines[0].startswith("twin: warning: the hand driver recovered 1 cycle(s)"), (
         lines
     )
+    import rerun as rr  # the viewer's log says it too
+
+    from twin.viz.rerun_log import _rows
+
+    text, level = rr.TextLog.descriptor_text().component, rr.TextLog.descriptor_level().component
+    rows = _rows(tmp_path / "hw" / "run.rrd", "log", [text, level])
+    warned = [c[text][0] for _, c in rows if c[level] == ["WARN"]]
+    assert any(w.startswith("the hand driver recovered 1 cycle(s)") for w in warned), warned

@@ -33,6 +33,11 @@ row-major, row 0 first (twin.sim.checkerboard.PALM_BOARD_LAYOUT gives the same s
 
 
 CAMERA_FLAGS = cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
+PAIR_POSE_TOLERANCE = (3.0, 0.010)
+"""A chessboard pair is used for the stereo fit only if the left-to-right pose its two views give (each
+camera's own board pose) lies within 3 deg and 10 mm of the pairs' median: a board read from opposite ends
+in the two views (find_chessboard's end-square test can misjudge one view: 1 pair in 300 on the twin,
+164 deg off) would otherwise pull the pair's pose 390 mm off. Consistent pairs agree within 0.5 deg, 3 mm."""
 """Camera model fitted: pinhole + radial k1, k2 (no k3, no tangential terms: a 6 mm C-mount lens on a
 1/3" sensor needs no more, and the extra terms trade principal-point accuracy for nothing here)."""
 
@@ -471,8 +476,16 @@ def stereo_calibrate(
             f"the chessboard was found in both views of {len(obj)} of {len(pairs)} pairs, need {min_views}"
         )
     wh = (size[1], size[0])
-    rms_l, k_l, d_l, _, _ = cv2.calibrateCamera(obj, img_l, wh, None, None, flags=flags)
-    rms_r, k_r, d_r, _, _ = cv2.calibrateCamera(obj, img_r, wh, None, None, flags=flags)
+    rms_l, k_l, d_l, rvec_l, tvec_l = cv2.calibrateCamera(obj, img_l, wh, None, None, flags=flags)
+    rms_r, k_r, d_r, rvec_r, tvec_r = cv2.calibrateCamera(obj, img_r, wh, None, None, flags=flags)
+    keep = _consistent_pairs(rvec_l, tvec_l, rvec_r, tvec_r)
+    if keep.sum() < min_views:
+        raise CalibrationImageError(
+            f"only {keep.sum()} of {len(obj)} chessboard pairs agree on where the right camera is from the "
+            f"left (within {PAIR_POSE_TOLERANCE[0]:g} deg and {1e3 * PAIR_POSE_TOLERANCE[1]:g} mm), "
+            f"need {min_views}"
+        )
+    obj, img_l, img_r = ([v for v, k in zip(views, keep, strict=True) if k] for views in (obj, img_l, img_r))
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-9)
     rms, k_l, d_l, k_r, d_r, r, t, _, _ = cv2.stereoCalibrate(
         obj,
@@ -495,6 +508,27 @@ def stereo_calibrate(
         source,
     )
     return StereoFit(calibration, float(rms_l), float(rms_r), float(rms), len(obj), len(pairs))
+
+
+def _consistent_pairs(
+    rvec_l: Sequence[NDArray], tvec_l: Sequence[NDArray], rvec_r: Sequence[NDArray], tvec_r: Sequence[NDArray]
+) -> NDArray[np.bool_]:
+    """Pairs whose own left-to-right pose (from each camera's board pose) lies within
+    PAIR_POSE_TOLERANCE of the median pair's."""
+    rotations, translations = [], []
+    for rl, tl, rr, tr in zip(rvec_l, tvec_l, rvec_r, tvec_r, strict=True):
+        r_l, r_r = cv2.Rodrigues(rl)[0], cv2.Rodrigues(rr)[0]
+        rotation = r_r @ r_l.T
+        rotations.append(rotation)
+        translations.append(np.ravel(tr) - rotation @ np.ravel(tl))
+    translations_m = np.array(translations)
+    median_m = np.median(translations_m, axis=0)
+    reference = rotations[int(np.argmin(np.linalg.norm(translations_m - median_m, axis=1)))]
+    angle_deg = np.array(
+        [np.degrees(np.arccos(np.clip((np.trace(r @ reference.T) - 1) / 2, -1, 1))) for r in rotations]
+    )
+    offset_m = np.linalg.norm(translations_m - median_m, axis=1)
+    return (angle_deg <= PAIR_POSE_TOLERANCE[0]) & (offset_m <= PAIR_POSE_TOLERANCE[1])
 
 
 def with_hand_from_left(calibration: StereoCalibration, pose: NDArray[np.float64]) -> StereoCalibration:

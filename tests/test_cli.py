@@ -92,6 +92,11 @@ def test_every_library_foam_runs_10_s_headless(name: str, fidelity: str, tmp_pat
     assert run.metadata["object"]["fidelity"] == fidelity
     assert run.metadata["mujoco_warnings"] == {}
     assert run.metadata["final_phase"] == "compress"
+    # run.json says where the safety layer's 2 kg cap shaped the curves: the readings at it per finger
+    cap = run.metadata["force_cap"]
+    at_cap = run.stream("hand")["force_kg"][:, :3] >= cap["limit_kg"]
+    assert cap["readings_at_cap"] == at_cap.sum(axis=0).tolist()
+    assert cap["times_reached"] == (at_cap[0] + (at_cap[1:] & ~at_cap[:-1]).sum(axis=0)).tolist()
     torque = run.stream("hand")["torque_nm"]
     # Far above the 0.005 N*m gauge noise: every finger still squeezes the foam through most of each of
     # the last 2 s's cycles. (Most, not all: on the 150 kPa firm block under MuJoCo 4.0 the thumb unloads

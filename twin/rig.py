@@ -350,6 +350,11 @@ class Rig:
         self._vision: ThreadPoolExecutor | None = None
         self._stereo_jobs: deque[Future] = deque()
         self.surface_scores: list[dict] = []
+        self.force_cap_samples = np.zeros(3, dtype=int)
+        """Hand readings at which each finger sat at the safety layer's fingertip-force cap (F1-F3)..."""
+        self.force_cap_entries = np.zeros(3, dtype=int)
+        """...and how many times it reached it: a run that rides the cap says so in run.json."""
+        self._at_cap = np.zeros(3, dtype=bool)
         """Per stereo frame, the reconstruction scored against the twin's truth (sim only)."""
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:  # declared together: one rewrite of run.json
@@ -528,6 +533,10 @@ class Rig:
             if log_truth is not None:
                 log_truth(reading.t_s, truth)
         self.safety.observe(reading)
+        at_cap = self.safety.at_force_limit
+        self.force_cap_samples += at_cap
+        self.force_cap_entries += at_cap & ~self._at_cap
+        self._at_cap = at_cap
         if self.shape_model is not None:
             inputs = np.concatenate([reading.position_counts[:3], physical["torque_nm"]])
             predicted = self.shape_model.predict(inputs)

@@ -256,6 +256,13 @@ def _diagnostics(backend: Backend, rig: Rig | None, result: RigResult | None) ->
     items = dict(backend.diagnostics())
     if rig is not None and rig.surface_scores:
         items["stereo_truth"] = summarize_surface_scores(rig.surface_scores)
+    if rig is not None:  # the safety layer's cap shapes the curves where a finger sits at it
+        items["force_cap"] = {
+            "limit_kg": rig.safety.limits.max_fingertip_force_kg,
+            "readings_at_cap": rig.force_cap_samples.tolist(),
+            "times_reached": rig.force_cap_entries.tolist(),
+            "fingers": ["F1", "F2", "F3"],
+        }
     if result is not None:
         items["final_phase"] = result.final_phase
     return items

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from twin.cli.common import (
     add_foam_overrides,
@@ -20,6 +21,7 @@ from twin.validation import existing_dir, existing_file
 
 if TYPE_CHECKING:
     from twin.interface.backend import Backend
+    from twin.session import RunOutcome
     from twin.sim.foam import FoamParams
 
 
@@ -154,22 +156,19 @@ def cmd_compress(args: argparse.Namespace) -> int:
 
         box = parse_box(args.bbox)
     backend = _backend(args, foam, cameras=args.cameras)
-    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
-        warnings.simplefilter("ignore", RunWarning)
-        outcome = with_progress(
-            args.duration,
-            not args.no_progress,
-            lambda progress: api.compress(
-                backend,
-                duration_s=args.duration,
-                out=args.out,
-                object_name=object_name,
-                progress=progress,
-                stereo_box=box,
-                shape_model=shape_model,
-                argv=sys.argv,
-            ),
-        )
+    outcome = _run_with_progress(
+        args,
+        lambda progress: api.compress(
+            backend,
+            duration_s=args.duration,
+            out=args.out,
+            object_name=object_name,
+            progress=progress,
+            stereo_box=box,
+            shape_model=shape_model,
+            argv=sys.argv,
+        ),
+    )
     truth = print_completion(outcome).get("stereo_truth")
     if truth:
         print(f"reconstruction vs the twin's truth: {surface_summary(truth)}")
@@ -177,20 +176,25 @@ def cmd_compress(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_with_progress(args: argparse.Namespace, run: Callable[[Any], RunOutcome]) -> RunOutcome:
+    """`run(progress)` under the command's progress bar; the API's RunWarnings silenced, since
+    print_completion says each as its own line."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RunWarning)
+        return with_progress(args.duration, not args.no_progress, run)
+
+
 def cmd_free(args: argparse.Namespace) -> int:
     """`twin run free`: the empty hand swings its fingers (eq. 4's hand terms)."""
     from twin import api
 
     backend = _backend(args, None)
-    with warnings.catch_warnings():  # the API's RunWarnings: print_completion says each, as one line
-        warnings.simplefilter("ignore", RunWarning)
-        outcome = with_progress(
-            args.duration,
-            not args.no_progress,
-            lambda progress: api.free(
-                backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
-            ),
-        )
+    outcome = _run_with_progress(
+        args,
+        lambda progress: api.free(
+            backend, duration_s=args.duration, out=args.out, progress=progress, argv=sys.argv
+        ),
+    )
     print_completion(outcome)
     print(f"use it: twin identify RUN --free {outcome.run_dir}")
     return 0

@@ -63,6 +63,8 @@ linearly between them (benchmarks/foam_calibration.py measures what that costs a
 MAX_RESIDUAL = 0.15
 """The most a calibrated flex's force may differ from the FEM's at any depth for its k to be applied."""
 MAX_FIT_ROUNDS = 5
+TOPPLED_M = 0.005
+"""A foam whose centre moved further than this across the palm in the bench toppled or rolled."""
 FIT_TOLERANCE = 0.01
 """The fit stops once a round changes k by less than this (relative)."""
 
@@ -600,10 +602,11 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
     for _ in range(MAX_FIT_ROUNDS):
         force, moved_m = _bench(bench, tips, k)
         if not (force > 0).all():  # no contact at some depth: nothing to fit (and no log of zero)
+            cause = (f"the object moved {1e3 * moved_m:.0f} mm across the palm (it toppled or rolled)"
+                     if moved_m > TOPPLED_M else "MuJoCo found no contact where the FEM did")  # fmt: skip
             why = (f"the bench read {' / '.join(f'{f:.2f}' for f in force)} N at 2 / 4 / 6 mm where the "
-                   f"FEM, which holds the base, read {' / '.join(f'{f:.2f}' for f in target)} N: the "
-                   f"object moved {1e3 * moved_m:.0f} mm across the palm (it toppled or rolled) and "
-                   "cannot be calibrated resting on it: k = 1")  # fmt: skip
+                   f"FEM, which holds the base, read {' / '.join(f'{f:.2f}' for f in target)} N: {cause}; "
+                   "it cannot be calibrated resting on the palm: k = 1")  # fmt: skip
             say(f"foam '{foam.name}': {why}")
             return _entry(foam, bench, t0, 1.0, target, force, None, rounds, fem_info) | {"uncalibrated": why}
         ratio = float(np.exp(np.mean(np.log(target / force))))

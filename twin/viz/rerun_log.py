@@ -598,7 +598,7 @@ class RunRecording:
             links = self._observer.update(counts, strain_counts)
         if self.kind.sim:
             self.log_scalars("observer", t_s, {"inner_rad": links[:, 0], "outer_rad": links[:, 1]})
-        if self._hand_model is not None and t_s >= self._hand_posed_t_s + 1.0 / HAND_POSE_RATE_HZ:
+        if self._hand_model is not None and t_s - self._hand_posed_t_s >= 0.999 / HAND_POSE_RATE_HZ:
             self._hand_posed_t_s = t_s
             self._hand_model.set_angles(links, float(units.spread_counts_to_rad(counts[3])))
             self.log_scene(t_s, self._hand_model.data)

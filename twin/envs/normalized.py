@@ -9,10 +9,11 @@ safety layer, determinism):
   set-point range: -1 is open (0 counts), +1 the firmware's largest set point, 0 half closed; an action
   outside [-1, 1] is refused by the safety layer, as in the raw env (SB3 clips its own);
 - observations as float32 fractions of each device's range (TransformObservation), from twin.units and
-  the safety limits: positions / the encoders' full travel, velocities / the safety layer's fastest
-  command (in counts per velocity sample, so +-1 at full speed), strain gauges and taxels / their
-  full scale. Each space is the exact image of the raw one (positions may read -0.1 to 1.1, as the raw
-  space allows 10 % beyond the travel; a velocity spike may read beyond +-1).
+  the safety limits: positions / the firmware's largest position (the spread's: 180 degrees),
+  velocities / the safety layer's fastest command (in counts per velocity sample, so +-1 at full
+  speed), strain gauges and taxels / their full scale. Each space is the exact image of the raw one
+  (positions may read -0.1 to 1.1, as the raw space allows 10 % beyond the range; a velocity spike
+  may read beyond +-1).
 """
 
 from __future__ import annotations

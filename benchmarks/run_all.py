@@ -38,6 +38,7 @@ SECTIONS = (
     "sweep_throughput",
     "run_overhead",
     "env_throughput",
+    "rl_learning",
 )
 
 

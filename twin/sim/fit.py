@@ -21,6 +21,7 @@ modulus along a valley (a 25 % change moves E ~8 %) and the elasticity damping b
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -84,6 +85,25 @@ def _identified_young_pa(path: Path, foam: FoamParams | None, workers: int) -> f
         return estimate_modulus(path, description=foam, workers=workers, precision=None).young_pa
     except (EstimateError, ValueError, KeyError):  # no pads, no compression, not a foam: scan instead
         return None
+
+
+def recorded_young_pa(path: Path, foam: FoamParams) -> float | None:
+    """E that `twin identify` already inferred for this run and this object, from RUN/identify (its
+    default output), so a fit after an identification does not run the same simulations again; None where
+    there is none, it describes another object, or the file is not one identify wrote (never an error:
+    the fit then estimates)."""
+    from twin.identify.report import RESULTS_FILE
+
+    try:
+        material = json.loads((path / "identify" / RESULTS_FILE).read_text(encoding="utf-8"))["material"]
+        young_pa, obj = material["young_pa"], material["object"]
+        same = obj["shape"] == foam.shape and np.allclose(obj["size_m"], foam.size_m, rtol=0, atol=1e-6)
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return None
+    low, high = BOUNDS["young_pa"]
+    if not (same and isinstance(young_pa, int | float) and low <= young_pa <= high):
+        return None
+    return float(young_pa)
 
 
 def foam_of_run(run: Run) -> FoamParams:
@@ -296,11 +316,15 @@ def fit_run(
     if "young_pa" in names:
         start_from = "given" if "young_pa" in (initial or {}) else "scan"
         start["young_pa"] = (initial or {}).get("young_pa", START["young_pa"])
-        if start_from == "scan":  # twin identify's estimate, where it has one
-            named_only = foam is None and not run.metadata.get("object")  # the library object it named
-            identified = _identified_young_pa(run.path, base if named_only else foam, workers)
-            if identified is not None:
-                start["young_pa"], start_from = identified, "identify"
+        if start_from == "scan":  # twin identify's estimate, where it has one (recorded, else made now)
+            recorded = recorded_young_pa(run.path, base)
+            if recorded is not None:
+                start["young_pa"], start_from = recorded, "identify (recorded)"
+            else:
+                named_only = foam is None and not run.metadata.get("object")  # the library object it named
+                identified = _identified_young_pa(run.path, base if named_only else foam, workers)
+                if identified is not None:
+                    start["young_pa"], start_from = identified, "identify"
     truth = dict(described) if run.metadata.get("backend") == "sim" else {}
     lo = np.array([math.log(BOUNDS[n][0]) if n in LOG_PARAMS else BOUNDS[n][0] for n in names])
     hi = np.array([math.log(BOUNDS[n][1]) if n in LOG_PARAMS else BOUNDS[n][1] for n in names])

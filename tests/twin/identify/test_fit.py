@@ -2,6 +2,7 @@
 modulus of a twin run it was not told."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -33,18 +34,25 @@ def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("sphere")  # beside the identification it starts from (its session fixture)
 def test_the_fit_finds_the_modulus_within_3_percent_and_holds_what_the_run_cannot_tell(
-    sphere_run, tmp_path, capsys
+    sphere_run, sphere_identified, tmp_path, capsys
 ):
+    # the run as `twin identify RUN` leaves it: its identification in RUN/identify
+    run = tmp_path / "run"
+    shutil.copytree(sphere_run, run, ignore=shutil.ignore_patterns("identify", "fit"))
+    shutil.copytree(sphere_identified[2], run / "identify")
+    identified = sphere_identified[1]["material"]["young_pa"]
     out = tmp_path / "fit"
-    argv = ["fit", str(sphere_run), "--params", "young_pa", "damping", "--no-progress", "--json"]
+    argv = ["fit", str(run), "--params", "young_pa", "damping", "--no-progress", "--json"]
     argv += ["--out", str(out)]
     assert main(argv) == 0
     result = json.loads(capsys.readouterr().out)
     assert abs(result["fitted"]["young_pa"] / SPHERE_YOUNG_PA - 1) < 0.03
     assert result["error"]["young_pa"] == pytest.approx(result["fitted"]["young_pa"] / SPHERE_YOUNG_PA - 1)
-    # it starts from `twin identify`'s estimate, never from the run's recorded (true) modulus
-    assert result["start_from"] == "identify" and result["initial"]["young_pa"] != SPHERE_YOUNG_PA
+    # it starts from `twin identify`'s recorded estimate, never from the run's recorded (true) modulus
+    assert result["start_from"] == "identify (recorded)" and result["initial"]["young_pa"] == identified
+    assert identified != SPHERE_YOUNG_PA
     assert result["identifiable"]["young_pa"]
     # The elasticity damping shows mostly in the touch, and at 12000 counts/s it sits at the edge of
     # what the run can tell: a 25 % move raised the residual by 7.4 % from one start of the modulus
@@ -120,3 +128,32 @@ def test_a_cli_hardware_run_records_only_an_object_it_was_told(tmp_path, capsys)
     assert Run(tmp_path / "hw").metadata["experiment"]["object"] == "unnamed"
     with pytest.raises(FitError, match="does not describe its object"):
         foam_of_run(Run(tmp_path / "hw"))
+
+
+def test_a_recorded_identification_is_a_start_only_for_its_own_object_and_never_an_error(tmp_path):
+    """RUN/identify/identify.json gives the fit its start where it describes the same object; another
+    object, a modulus outside the fit's bounds, or a file identify did not write (truncated, of another
+    shape, nested 100,000 deep) give none, and the fit estimates instead."""
+    from twin.sim.fit import recorded_young_pa
+    from twin.sim.foam import get_object
+
+    sphere = get_object("sphere")
+    results = tmp_path / "identify" / "identify.json"
+    results.parent.mkdir()
+
+    def record(material: object) -> float | None:
+        results.write_text(json.dumps({"material": material}))
+        return recorded_young_pa(tmp_path, sphere)
+
+    described = {"shape": "sphere", "size_m": list(sphere.size_m)}
+    assert recorded_young_pa(tmp_path, sphere) is None  # no file yet
+    assert record({"young_pa": 51_000.0, "object": described}) == 51_000.0
+    assert record({"young_pa": 51_000.0, "object": described | {"shape": "block"}}) is None
+    assert record({"young_pa": 51_000.0, "object": described | {"size_m": [0.07, 0.07, 0.071]}}) is None
+    assert record({"young_pa": 1e9, "object": described}) is None
+    assert record({"young_pa": "51000", "object": described}) is None
+    assert record(None) is None
+    results.write_text('{"material": ' * 100_000)
+    assert recorded_young_pa(tmp_path, sphere) is None
+    results.write_bytes(b"\xff\xfe not json")
+    assert recorded_young_pa(tmp_path, sphere) is None

@@ -305,7 +305,7 @@ def compression_window(kind: RunKind) -> rrb.TimeSeriesView:
         start = rrb.TimeRangeBoundary.cursor_relative(seconds=-COMPRESSION_WINDOW_S)
         name = f"compression window, last {COMPRESSION_WINDOW_S:g} s (counts)"
     else:
-        start = rrb.TimeRangeBoundary.absolute(seconds=kind.compress_start_s)
+        start = rrb.TimeRangeBoundary.absolute(nanos=round(1e9 * kind.compress_start_s))  # as logged
         name = (
             f"compression window, from the {COMPRESS_PHASE} phase at {kind.compress_start_s:.1f} s (counts)"
         )

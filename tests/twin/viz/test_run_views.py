@@ -173,6 +173,28 @@ def test_a_sim_compress_run_has_every_view_filled_and_ranged(compress_run):
     assert "tip contact force: eq. 6 - true (N): F1 red, F2 blue, F3 green" in names
 
 
+def test_twin_view_gives_a_run_the_ranges_its_recording_closed_with(compress_run, tmp_path):
+    """`twin view` builds the blueprint from the run's files (a killed run's recording has none): the
+    same views with the same y ranges and compression window as the recording's own."""
+    from twin.cli.view import view_files
+
+    rbl = tmp_path / "view.rbl"
+    view_files(compress_run, rbl)
+
+    def ranged(path: Path) -> dict[str, object]:
+        return {
+            v["ViewBlueprint:display_name"][0]: (v.get("ScalarAxis:range"), v.get("VisibleTimeRanges:ranges"))
+            for v in _views(path).values()
+            if v["ViewBlueprint:class_identifier"][0] == "TimeSeries"
+        }
+
+    own, built = ranged(compress_run / "run.rrd"), ranged(rbl)
+    assert own.keys() == built.keys()
+    for name, (y, window) in own.items():
+        np.testing.assert_allclose(built[name][0], y, rtol=1e-12, err_msg=name)
+        assert built[name][1] == window, name
+
+
 def test_a_free_run_has_every_view_filled_and_ranged(free_run):
     names = _check_every_view(free_run / "run.rrd")
     assert not any(n.startswith("compression window") for n in names)

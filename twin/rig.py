@@ -365,6 +365,9 @@ class Rig:
         self._behind = False
         self._recoveries_seen = len(backend.hand.recoveries)
         """The hand's recovered cycles already marked (a read's or a command's: at the next reading)."""
+        self._frames_dropped = 0
+        self._frames_lost = False
+        """The pads' frames lost so far (the device's count), and whether the last scan followed a loss."""
         """The last hand reading came after a recovered cycle / over a period behind its schedule."""
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:  # declared together: one rewrite of run.json
@@ -564,6 +567,18 @@ class Rig:
             self._event(t_s, "hand_loop", None)
         self._behind = behind
 
+    def _note_lost_frames(self, scan: TactileReading) -> None:
+        """The pads' frames lost on the way before a scan (its device counts them: sequence gaps, bad
+        frames), marked at that scan on the viewer's tactile_frames lane, cleared at the next one."""
+        lost = scan.dropped_frames - self._frames_dropped
+        self._frames_dropped = max(self._frames_dropped, scan.dropped_frames)
+        if lost > 0:
+            text = f"tactile: {lost} frame(s) lost before this scan, {scan.dropped_frames} so far"
+            self._event(scan.t_s, "tactile_frames", "frames lost", text)
+        elif self._frames_lost:
+            self._event(scan.t_s, "tactile_frames", None)
+        self._frames_lost = lost > 0
+
     def _safe_stop(self, exc: BaseException) -> StopReport:
         """Idle the hand (T on hardware) before anything else, and say whether it acknowledged."""
         report = StopReport(_describe(exc), type(exc).__name__, "not connected")
@@ -645,6 +660,7 @@ class Rig:
                 )
 
     def _deliver_tactile(self, scan: TactileReading) -> None:
+        self._note_lost_frames(scan)
         pressure = self.tactile_calibration.to_kpa(scan.counts)
         forces = pad_forces_n(pressure)
         self._record(

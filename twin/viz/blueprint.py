@@ -52,8 +52,9 @@ EVENTS_ENTITY = "events"
 """The run's events as states on the shared time axis: events/phase (the procedure's phase),
 events/F<k>_force_cap (a finger at the fingertip-force cap, where the safety layer stops its closing),
 events/F<k>_command (its command clipped), events/hand_cycle (a hardware cycle the driver recovered),
-events/hand_loop (a hardware loop over a period behind its schedule), events/run (a stop: a refused
-command, a lost hand). RunRecording.log_event writes them, twin.rig decides them."""
+events/hand_loop (a hardware loop over a period behind its schedule), events/tactile_frames (a scan
+after pad frames were lost), events/run (a stop: a refused command, a lost hand).
+RunRecording.log_event writes them, twin.rig decides them."""
 COMPRESS_PHASE = "compress"
 """The phase whose window the compression view shows (twin.experiments.compress)."""
 FORCE_CAP_ENTITY = "plots/hand/force_cap_kg"

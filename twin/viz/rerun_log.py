@@ -763,7 +763,7 @@ class RunRecording:
     ) -> None:
         """A state on the lane events/<lane> from t_s on (None clears it: the lane's bar ends), and a
         row in the text log when `text` is given: the phases, the force cap, a clipped or refused
-        command, a recovered hand cycle, a hand loop behind its schedule (twin.rig)."""
+        command, a recovered hand cycle, a hand loop behind its schedule, lost pad frames (twin.rig)."""
         self._open(t_s)
         change = rr.StateChange(state=state) if state is not None else rr.StateChange.cleared()
         self.rec.log(f"{EVENTS_ENTITY}/{lane}", change)

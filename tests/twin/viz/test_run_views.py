@@ -88,6 +88,29 @@ def hardware_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def hardware_pads_run(tmp_path_factory) -> Path:
+    """A hardware run with the hand and the pads against their in-process emulators; the pads' emulator
+    never sends its 20th frame (a sequence gap: one frame lost)."""
+    from twin.hardware.pps.emulator import make_tactile_emulator
+    from twin.hardware.rig_config import TactilePortConfig
+
+    out = tmp_path_factory.mktemp("hardware-pads") / "run"
+    table = SimBackend(LIBRARY["block"]).write_calibration(out.parent / "calibration")["tactile_table"]
+    with make_hand_emulator("block") as hand, make_tactile_emulator("ramp", faults="drop@20") as pads:
+        port = TactilePortConfig(url=pads.serve_tcp(0))
+        config = RigConfig(tactile_port=port, calibration={"tactile_table": table})
+        run_experiment(
+            backend=HardwareBackend(config.with_hand_port(hand.serve_tcp())),
+            controller=CompressController(),
+            phases=PHASES,
+            duration_s=1.5,
+            run_dir=out,
+            experiment={"name": "compress"},
+        )
+    return out
+
+
 def _views(rrd: Path) -> dict[str, dict[str, object]]:
     """View id -> its blueprint columns (class, origin, contents, y range, time ranges), from the last
     blueprint in the file (Rerun's reader)."""
@@ -233,6 +256,25 @@ def test_a_hardware_run_has_every_view_filled_and_ranged_and_marks_its_cycles(ha
     first = int(np.argmax(late > period))
     assert loop[0][0] == pytest.approx(t_hand[first], abs=1e-6)
     assert late[int(np.argmin(np.abs(t_hand - loop[-1][0])))] <= period  # back on schedule where it ends
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # wall-clock emulation
+def test_a_hardware_run_with_pads_has_every_view_filled_and_marks_a_lost_frame(hardware_pads_run):
+    """The pads' views are there and filled; the lost frame is a lane and a warning at the scan after
+    it, where the recorded count of dropped frames steps, cleared at the next scan."""
+    rrd = hardware_pads_run / "run.rrd"
+    names = _check_every_view(rrd)
+    assert "pad forces, eq. 6 (N)" in names and any(n.startswith("tactile pressure") for n in names)
+    tactile = open_run(hardware_pads_run).stream("tactile")
+    dropped = np.asarray(tactile["dropped_frames"])
+    (step,) = np.flatnonzero(np.diff(dropped)) + 1
+    (lost, cleared) = _states(rrd, "tactile_frames")
+    assert lost[1] == "frames lost" and cleared[1] is None
+    assert lost[0] == pytest.approx(tactile.t_s[step], abs=1e-6)
+    assert cleared[0] == pytest.approx(tactile.t_s[step + 1], abs=1e-6)
+    rows = [t for level, t in _log(rrd) if level == "WARN" and t.startswith("tactile: ")]
+    assert rows == [f"tactile: 1 frame(s) lost before this scan, {dropped[step]} so far"]
 
 
 def test_a_clipped_command_is_a_lane_where_the_finger_sits_at_the_cap(compress_run):

@@ -339,3 +339,47 @@ def test_a_refused_command_is_a_lane_and_an_error_row_where_the_run_stopped(tmp_
     assert state == "command refused" and t_hand[9] <= t < t_hand[9] + 1 / 30  # at the 10th reading
     errors = [text for level, text in _log(rrd) if level == "ERROR"]
     assert len(errors) == 1 and "30000" in errors[0] and "the hand was idled" in errors[0]
+
+
+def test_the_tactile_colour_bar_spans_the_pads_scale_and_the_labels_stand_apart(compress_run):
+    """The colour bar is the pads' colour map over the pads' own range (read back in kPa: the scale's top
+    at the top, 0 at the bottom), ticked with it; the canvas's labels are short and 20 mm or more apart
+    (the 18 mm pads sit 30 mm apart: six full names ran into each other)."""
+    from twin.viz.rerun_log import read_rrd_images
+
+    rrd = compress_run / "run.rrd"
+    scale = float(
+        [t for _, t in _log(rrd) if t.startswith("tactile colour scale: 0-")][-1].split("-")[1].split()[0]
+    )
+    depth_range = rr.DepthImage.descriptor_depth_range().component
+    ranges = {
+        chunk.entity_path: chunk.to_record_batch().column(depth_range).to_pylist()[-1]
+        for chunk in RrdReader(rrd).stream().filter(is_static=True, components=[depth_range])
+        if depth_range in chunk.to_record_batch().schema.names
+    }
+    assert (
+        len({tuple(np.ravel(r)) for r in ranges.values()}) == 1 and "/tactile/colour_bar" in ranges
+    )  # one range
+    bar = read_rrd_images(rrd, "/tactile/colour_bar")[-1][1]  # static, logged again as the scale rose
+    assert (
+        bar[0, 0] == pytest.approx(scale, abs=0.1) and bar[-1, 0] == 0.0 and (np.diff(bar[:, 0]) <= 0).all()
+    )
+    labels = rr.Points2D.descriptor_labels().component
+    positions = rr.Points2D.descriptor_positions().component
+    (ticks,) = [
+        chunk.to_record_batch().column(labels).to_pylist()[-1]
+        for chunk in RrdReader(rrd).stream().filter(content="/tactile/scale", is_static=True)
+    ]
+    assert ticks[-1] == f"{scale:g} kPa" and ticks[0] == "0"
+    (names,) = [
+        (
+            chunk.to_record_batch().column(labels).to_pylist()[-1],
+            chunk.to_record_batch().column(positions).to_pylist()[-1],
+        )
+        for chunk in RrdReader(rrd).stream().filter(content="/tactile/names", is_static=True)
+    ]
+    text, where = names
+    assert set(text) == {"F1", "F2", "F3", "tip", "inner", "palm"}
+    xy = np.array(where)
+    gaps = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.eye(len(xy)) * 1e9
+    assert gaps.min() >= 20.0

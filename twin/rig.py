@@ -363,12 +363,12 @@ class Rig:
         """Fingers whose last command was clipped (the viewer's lanes mark where that starts and ends)."""
         self._recovered = False
         self._behind = False
+        """The last hand reading came after a recovered cycle / over a period behind its schedule."""
         self._recoveries_seen = len(backend.hand.recoveries)
         """The hand's recovered cycles already marked (a read's or a command's: at the next reading)."""
         self._frames_dropped = 0
         self._frames_lost = False
         """The pads' frames lost so far (the device's count), and whether the last scan followed a loss."""
-        """The last hand reading came after a recovered cycle / over a period behind its schedule."""
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:  # declared together: one rewrite of run.json
             writer.add_streams(*self._stream_specs())

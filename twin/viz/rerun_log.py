@@ -730,7 +730,7 @@ class RunRecording:
         key = round(1e9 * t_s)
         halves = self._halves.setdefault(field, ({}, {}))
         side = 0 if estimate is not None else 1
-        value = np.asarray(estimate if estimate is not None else truth, dtype=float)
+        value = np.array(estimate if estimate is not None else truth, dtype=float)  # a copy: it may wait
         other = halves[1 - side].pop(key, None)
         if other is None:
             mine = halves[side]

@@ -30,6 +30,7 @@ SECTIONS = (
     "stereo_calibration",
     "stereo_pipeline",
     "stereo_run",
+    "recording_size",
     "identification",
     "interval_calibration",
     "identifiability",

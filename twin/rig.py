@@ -33,7 +33,7 @@ from twin.interface.devices import (
 )
 from twin.processes import interrupts_deferred
 from twin.recording import FieldSpec, RunWriter, StreamSpec
-from twin.safety import SafetyLayer
+from twin.safety import SafetyLayer, UnsafeCommandError
 from twin.tactile.calibration import TaxelCalibration, active_counts, load_calibration, pad_forces_n
 from twin.tactile.layout import LAYOUT
 
@@ -250,6 +250,9 @@ time, then by the order they were pushed (never by kind or payload: the order is
 
 LOOP_RATE_TOLERANCE = 0.98
 """A hardware hand loop below 98 % of its declared rate is reported (RigResult.warnings)."""
+CLIP_TOLERANCE_COUNTS = 0.5
+"""A finger's set point sent more than half a count (the encoder's resolution) from the one the procedure
+asked for was clipped: by the safety layer (held at the force cap) or by the hand (its range)."""
 
 
 @dataclass
@@ -356,6 +359,16 @@ class Rig:
         """...and how many times it reached it: a run that rides the cap says so in run.json."""
         self._at_cap = np.zeros(3, dtype=bool)
         """Per stereo frame, the reconstruction scored against the twin's truth (sim only)."""
+        self._clipped = np.zeros(3, dtype=bool)
+        """Fingers whose last command was clipped (the viewer's lanes mark where that starts and ends)."""
+        self._recovered = False
+        self._behind = False
+        """The last hand reading came after a recovered cycle / over a period behind its schedule."""
+        self._recoveries_seen = len(backend.hand.recoveries)
+        """The hand's recovered cycles already marked (a read's or a command's: at the next reading)."""
+        self._frames_dropped = 0
+        self._frames_lost = False
+        """The pads' frames lost so far (the device's count), and whether the last scan followed a loss."""
         self._velocity_sample_time_s = backend.hand.config.velocity_sample_time_s
         if writer is not None:  # declared together: one rewrite of run.json
             writer.add_streams(*self._stream_specs())
@@ -432,6 +445,10 @@ class Rig:
                         now_s = time.monotonic()
                         hand_wall_s = [hand_wall_s[0] if hand_wall_s else now_s, now_s]
                     reading = hand.read()
+                    if not self.backend.is_simulated:
+                        recovered = list(hand.recoveries[self._recoveries_seen :])
+                        self._recoveries_seen += len(recovered)
+                        self._note_hand_cycle(reading.t_s, event_t_s, recovered, period)
                     truth = self.backend.ground_truth()
                     if self.backend.is_simulated:
                         self._push(reading.t_s + latency, "deliver_hand", (reading, truth))
@@ -466,6 +483,9 @@ class Rig:
             self._record_stereo(wait=True)
         except BaseException as exc:  # watchdog, device error, unsafe command, Ctrl-C: idle first
             self.stop = self._safe_stop(exc)
+            with contextlib.suppress(Exception):  # the stop on the viewer's time axis, where it happened
+                state = "command refused" if isinstance(exc, UnsafeCommandError) else "stopped"
+                self._event(clock.now(), "run", state, f"run stopped: {self.stop.message()}", "ERROR")
             with contextlib.suppress(Exception):  # keep the frames already taken (<= the backlog)
                 self._record_stereo(wait=True)
             raise
@@ -495,6 +515,69 @@ class Rig:
             f"hand loop ran at {achieved_hz:.1f} Hz of {declared_hz:g} Hz "
             f"({run_s:.3g} s of run time took {took_s:.3g} s): the readings are further apart than declared"
         ]
+
+    def _event(
+        self, t_s: float, lane: str, state: str | None, text: str | None = None, level: str = "WARN"
+    ) -> None:
+        """A state on one of the viewer's event lanes from t_s on (None ends it), and a log row."""
+        log_event = getattr(self.viewer, "log_event", None)
+        if log_event is not None:
+            log_event(t_s, lane, state, text, level)
+
+    def _note_clipping(self, t_s: float, asked: HandCommand, applied: HandCommand) -> None:
+        """Mark where each finger's command starts and stops being clipped (the safety layer holding it
+        at the force cap, or the hand's range): the curves show the clipped motion, this says why."""
+        want, sent = asked.position_counts[:3], applied.position_counts[:3]
+        clipped = np.abs(want - sent) > CLIP_TOLERANCE_COUNTS
+        for k in np.flatnonzero(clipped != self._clipped):
+            lane = f"{FINGER_LABELS[k]}_command"
+            if not clipped[k]:
+                self._event(t_s, lane, None)
+                continue
+            why = (
+                f"held by the safety layer at the {self.safety.limits.max_fingertip_force_kg:g} kg force cap"
+                if self._at_cap[k]
+                else "clipped to the hand's range"
+            )
+            text = (
+                f"{FINGER_LABELS[k]} command clipped: {want[k]:.0f} counts asked, {sent[k]:.0f} sent ({why})"
+            )
+            self._event(t_s, lane, "clipped", text)
+        self._clipped = clipped
+
+    def _note_hand_cycle(
+        self, t_s: float, scheduled_s: float, recoveries: list[str], period_s: float
+    ) -> None:
+        """Hardware: the cycles recovered since the last reading (in this read or the command before it),
+        marked at this reading; a loop over one period behind its schedule (k periods from the start);
+        each marked where it starts and ends."""
+        if recoveries:
+            lines = "; ".join(recoveries)
+            self._event(t_s, "hand_cycle", "recovered", f"hand cycle recovered ({len(recoveries)}): {lines}")
+        elif self._recovered:
+            self._event(t_s, "hand_cycle", None)
+        self._recovered = bool(recoveries)
+        late_s = t_s - scheduled_s
+        behind = late_s > period_s
+        if behind and not self._behind:
+            rate = 1.0 / period_s
+            text = f"hand loop {1e3 * late_s:.0f} ms behind its {rate:g} Hz schedule: readings are late"
+            self._event(t_s, "hand_loop", f"behind its {rate:g} Hz schedule", text)
+        elif self._behind and not behind:
+            self._event(t_s, "hand_loop", None)
+        self._behind = behind
+
+    def _note_lost_frames(self, scan: TactileReading) -> None:
+        """The pads' frames lost on the way before a scan (its device counts them: sequence gaps, bad
+        frames), marked at that scan on the viewer's tactile_frames lane, cleared at the next one."""
+        lost = scan.dropped_frames - self._frames_dropped
+        self._frames_dropped = max(self._frames_dropped, scan.dropped_frames)
+        if lost > 0:
+            text = f"tactile: {lost} frame(s) lost before this scan, {scan.dropped_frames} so far"
+            self._event(scan.t_s, "tactile_frames", "frames lost", text)
+        elif self._frames_lost:
+            self._event(scan.t_s, "tactile_frames", None)
+        self._frames_lost = lost > 0
 
     def _safe_stop(self, exc: BaseException) -> StopReport:
         """Idle the hand (T on hardware) before anything else, and say whether it acknowledged."""
@@ -551,6 +634,7 @@ class Rig:
             # acknowledgement, a round trip a loaded host stretches (the sim's clock stands still here)
             sent_s = self.backend.clock.now()
             applied = self.backend.hand.command(checked)
+            self._note_clipping(sent_s, command, applied)
             self._record(
                 "command",
                 sent_s,  # on delivery: on hardware at once, in the sim one latency after the sample
@@ -576,6 +660,7 @@ class Rig:
                 )
 
     def _deliver_tactile(self, scan: TactileReading) -> None:
+        self._note_lost_frames(scan)
         pressure = self.tactile_calibration.to_kpa(scan.counts)
         forces = pad_forces_n(pressure)
         self._record(

@@ -8,6 +8,7 @@ twin.units. This module imports no backend.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Self
@@ -104,6 +105,9 @@ class Hand(Device):
 
     config: HandConfig
     """Declared sampling and corruption (same type for every backend)."""
+    recoveries: Sequence[str] = ()
+    """Why each feedback cycle the driver had to retry was retried, one line each, in order (a real hand's
+    driver appends to it; a simulated hand loses no cycle). The rig marks each one at its reading."""
 
     @abstractmethod
     def read(self) -> HandReading:

@@ -4,17 +4,18 @@ kind of run (twin.viz.blueprint).
 The 3-D view shows the MuJoCo model (visual geoms on their bodies, each finger's links in its fixed
 colour) and the deforming foam; time series show each finger's measured position against its command,
 velocity (rad/s), torque and force, and in sim runs the simulator's truth against what the sensors and
-the science say; the pads are images of filled cells (kPa), the procedure's phases go to the text log.
+the science say, and their difference; the pads are images of filled cells (kPa) beside a colour bar;
+the procedure's phases and the safety layer's events are lanes on the time axis and rows of the log.
 
 Stereo (log_stereo_setup, log_stereo): everything the vision produces lives in the hand frame
 (HAND_ENTITY, "/world/hand", posed at the palm body's world pose so it sits on the hand model): the
-two cameras as pinholes with their images (JPEG, 15 fps), the rectified left camera with the depth from
-the disparity (PNG, every frame), the reconstructed cloud and mesh and the fused cloud and mesh (10 Hz),
-and the tactile contact points.
+two cameras as pinholes with their images (JPEG, 10 fps), the rectified left camera with the depth from
+the disparity (PNG, with the images), the reconstructed cloud and mesh (5 Hz), the fused cloud and mesh
+(2 Hz), and the tactile contact points.
 
-Size (`twin run compress --duration 6`, 12 s for the rate; the vision of commit d9b35e4): a camera run
-47 % of what it was (4.73 MB for 6 s, 37 MB a minute, from 10.0 MB and 80 MB); a run without cameras
-1.26 MB for 6 s, 7.8 MB a minute (from 0.95 MB and 6.7 MB: truth, observer and command are plotted now).
+Size (benchmarks/recording_size.py: `twin run compress`, 12 s against 6 s, per minute): a camera run
+31.2 MB a minute (39.5 before the fused surface went from 5 to 2 Hz), a run without cameras 8.5 (8.3
+before the differences to the truth were plotted); the blueprint, sent once at close, ~0.2 MB.
 
 Reading an .rrd back uses Rerun's own chunk reader (`rerun.chunk.RrdReader`): Rerun 0.41 has no
 `rerun.dataframe` module any more, and its DataFusion query API (`ChunkStore.reader`) needs the
@@ -45,14 +46,20 @@ from twin import units
 from twin.units import FINGERTIP_FORCE_LIMIT_KG
 from twin.viz.blueprint import (
     CLOUD_ENTITY,
+    COMPRESS_PHASE,
+    CONTACT_RGB,
+    DIFFERENCE_STREAM,
     EVENTS_ENTITY,
     FINGER_RGB,
+    FINGERS,
     FUSED_CLOUD_ENTITY,
     FUSED_MESH_ENTITY,
+    FUSED_RGB,
     HAND_ENTITY,
     LOG_ENTITY,
     MESH_ENTITY,
     POINT_ERROR_COLORMAP,
+    POINT_ERROR_COLORMAP_FROM,
     POINT_ERROR_SCALE_MM,
     RECTIFIED_ENTITY,
     SERIES_STYLE,
@@ -65,7 +72,7 @@ from twin.viz.blueprint import (
     finger_of,
     plotted_paths,
     run_blueprint,
-    series,
+    series_of,
 )
 
 __all__ = [
@@ -113,15 +120,23 @@ recording. Every frame stays in the run's stereo stream (left_jpeg, right_jpeg).
 PERIOD_SLACK_S = 0.01
 """Frame times sit on the simulator's step grid (2 ms): two frames of a 30 fps pair may be 66 ms apart."""
 SURFACE_PERIOD_S = 0.2
-"""Clouds and meshes of the stereo reconstruction go to the .rrd at 5 Hz: from the lateral view the
-fused mesh alone was a quarter of a camera run's recording at 10 Hz, and 10 updates per cycle follow
-the 0.5 Hz squeeze. Every frame's fused cloud and mesh stay in the run's stereo stream."""
+"""The stereo reconstruction's cloud (and mesh, if it has one) goes to the .rrd at 5 Hz: 10 updates per
+cycle of the 0.5 Hz squeeze. Every frame's clouds and meshes stay in the run's stereo stream."""
+FUSED_PERIOD_S = 0.5
+"""The fused cloud and mesh go to the .rrd at 2 Hz: in the compress phase of a sim camera run the fused
+surface moves 0.30 mm (median nearest-point distance) in 0.5 s and 0.21 mm in 0.2 s, no more than the
+reconstruction's own median error against the truth (0.30 mm), so faster updates mostly redraw its
+noise; at 5 Hz the fused mesh was a third of a camera run's recording (benchmarks/recording_size.py)."""
 MAX_EDGE_FACTOR = 4.0
 """A triangle whose longest edge exceeds this many times the mesh's median edge joins points that are
 not neighbours on the surface (a finger's edge behind the foam): it is not drawn."""
-FUSED_RGB = (90, 170, 230)
-TACTILE_POINTS_RGB = (230, 50, 50)
+TACTILE_POINTS_RGB = CONTACT_RGB
 OTHER_PLOTS_VIEW = "other series"
+_WINDOWED = ("/plots/hand/position_counts", "/plots/command/position_counts")
+"""The entities of the compression window, whose range over the compress phase is kept."""
+_UNPAIRED_KEPT = 64
+"""Halves of a difference kept waiting for their other half (2 s at 30 Hz): the rig delivers a
+reading's truth and its sensors' estimate within a latency of each other."""
 # mjtGeom values (stable across MuJoCo 3.x): plane 0, hfield 1, sphere 2, capsule 3, ellipsoid 4,
 # cylinder 5, box 6, mesh 7, sdf 8. Height fields and SDFs are not drawn.
 _PLANE, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = 0, 2, 3, 4, 5, 6, 7
@@ -237,6 +252,9 @@ def _pad_images() -> list[_PadImage]:
 
 TACTILE_KPA_PER_UNIT = 0.1
 """The pads' images are uint16 in units of 0.1 kPa (meter = 10: the viewer's hover reads kPa)."""
+COLOUR_BAR_ROWS = 64
+COLOUR_BAR_WIDTH_MM = 6.0
+"""The tactile colour bar: an image of this many rows (top: the scale's top) this wide on the canvas."""
 
 
 def _pad_pixels(pad: _PadImage, pressure_kpa: np.ndarray) -> np.ndarray:
@@ -303,7 +321,7 @@ class RunRecording:
         # Chunks of up to 2 s or 4 MB of what is logged row by row (images, clouds): fewer, larger chunks.
         batcher = rr.ChunkBatcherConfig(flush_tick=timedelta(seconds=2), flush_num_bytes=4 << 20)
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id, batcher_config=batcher)
-        self.rec.save(self.rrd_path)  # the blueprint follows once the set-up is known (_send_blueprint)
+        self.rec.save(self.rrd_path)  # the blueprint follows at close, from what was logged
         self._blueprint_sent = False
         self._plotted = plotted_paths(self.kind)
         self._other_plots: list[str] = []
@@ -331,7 +349,13 @@ class RunRecording:
         self._hand_posed_t_s = -np.inf
         self._observer: object | None = None
         self._last_surface_s: float | None = None
+        self._last_fused_s: float | None = None
         self._last_image_s: float | None = None
+        self._extremes: dict[str, tuple[float, float]] = {}
+        self._compress_start_s: float | None = None
+        self._window_extremes: tuple[float, float] | None = None
+        self._halves: dict[str, tuple[dict[int, np.ndarray], dict[int, np.ndarray]]] = {}
+        """Per difference: estimates and truths by time (ns) still waiting for their other half."""
 
     def _set_kind(self, **changes: object) -> None:
         """The run turned out richer (cameras, a prediction, the foam's place): re-send its blueprint."""
@@ -343,8 +367,9 @@ class RunRecording:
                 self._send_blueprint()
 
     def _send_blueprint(self) -> None:
-        """The blueprint, first when time-varying data starts (or at close), after the set-up (model,
-        cameras) has framed it: each one sent costs ~0.1 MB of the .rrd."""
+        """The blueprint, once, at close: it takes the y ranges and the compress phase's start from what
+        was logged, and each one sent costs ~0.2 MB of the .rrd (a chunk per view part). A recording
+        whose process was killed has none: `twin view` makes it from the files (kind_of_run)."""
         self._blueprint_sent = True
         blueprint = run_blueprint(self.kind)
         if self._other_plots:  # series no view of the run's kind knows: shown, not lost
@@ -356,8 +381,6 @@ class RunRecording:
         keeps rows pending (or calls _sync_time before logging now), so Rerun's time is set lazily."""
         if self._closed:
             raise RuntimeError(f"recording {self.rrd_path} is closed")
-        if t_s is not None and not self._blueprint_sent:
-            self._send_blueprint()
         if t_s is not None and float(t_s) != self._time_s:
             self._time_s = float(t_s)
             self._t_ns = round(1e9 * self._time_s)  # as Rerun's set_time rounds it
@@ -490,13 +513,10 @@ class RunRecording:
         pressure = np.array(pressure_kpa, dtype=float)  # a copy: the row may wait to be sent
         if self._first(TACTILE_ENTITY):  # layout, names and the taxels' places once, static
             self._pad_images = _pad_images()
-            labels = [_pad_label(p.path.rsplit("/", 1)[1]) for p in self._pad_images]
-            corners = np.array([p.corner_mm for p in self._pad_images])
+            where, labels, colors = _pad_labels(self._pad_images)
             self.rec.log(
                 f"{TACTILE_ENTITY}/names",
-                rr.Points2D(
-                    corners - np.array([0.0, 14.0]), labels=labels, radii=0.1, colors=finger_colors(labels)
-                ),
+                rr.Points2D(where, labels=labels, radii=0.1, colors=colors, show_labels=True),
                 static=True,
             )
             for pad in self._pad_images:
@@ -537,6 +557,8 @@ class RunRecording:
             {"pad_force_n": forces, "tip_force_n": forces[tips]},
             labels={"pad_force_n": LAYOUT.pad_names},
         )
+        if self.kind.sim:
+            self._difference("tip_force_n", t_s, forces[tips], None)
 
     def _set_pressure_scale(self, t_s: float, scale_kpa: float) -> None:
         """The tactile colour scale's top (kPa): on every pad (static: one scale for the whole run, the
@@ -548,12 +570,39 @@ class RunRecording:
                 rr.DepthImage.from_fields(depth_range=[0.0, scale_kpa / TACTILE_KPA_PER_UNIT]),
                 static=True,
             )
-        palm = self._pad_images[-1]  # beside the palm, right of it
-        right = palm.corner_mm[0] + palm.pitch_mm * palm.shape[1]
-        where = [[right + 80.0, palm.corner_mm[1] + palm.pitch_mm * palm.shape[0] / 2]]
-        text = f"0-{scale_kpa:g} kPa (yellow: {scale_kpa:g}+)"
-        self.rec.log(f"{TACTILE_ENTITY}/scale", rr.Points2D(where, labels=[text], radii=0.1), static=True)
+        self._log_colour_bar(scale_kpa)
         self.log_text(t_s, f"tactile colour scale: 0-{scale_kpa:g} kPa")
+
+    def _log_colour_bar(self, scale_kpa: float) -> None:
+        """A colour bar right of the pads: the pads' colour map over 0..scale_kpa as an image of its own
+        (same format, meter and range as theirs), ticks at 0, half and full scale."""
+        x0, y0, y1 = _colour_bar_place(self._pad_images)
+        rows = COLOUR_BAR_ROWS
+        units = np.linspace(scale_kpa / TACTILE_KPA_PER_UNIT, 0.0, rows).round().astype(np.uint16)
+        bar = f"{TACTILE_ENTITY}/colour_bar"
+        self.rec.log(
+            bar,
+            rr.Transform3D(translation=[x0, y0, 0.0], scale=[COLOUR_BAR_WIDTH_MM, (y1 - y0) / rows, 1.0]),
+            rr.DepthImage(
+                units[:, None],
+                meter=1.0 / TACTILE_KPA_PER_UNIT,
+                colormap=PRESSURE_COLORMAP,
+                depth_range=[0.0, scale_kpa / TACTILE_KPA_PER_UNIT],
+                magnification_filter="Nearest",
+            ),
+            static=True,
+        )
+        ticks = [(y1, "0"), ((y0 + y1) / 2, f"{scale_kpa / 2:g}"), (y0, f"{scale_kpa:g} kPa")]
+        self.rec.log(
+            f"{TACTILE_ENTITY}/scale",
+            rr.Points2D(
+                [[x0 + COLOUR_BAR_WIDTH_MM + 4.0, y] for y, _ in ticks],
+                labels=[text for _, text in ticks],
+                radii=0.1,
+                show_labels=True,
+            ),
+            static=True,
+        )
 
     def log_hand(
         self,
@@ -578,17 +627,14 @@ class RunRecording:
         at_cap = np.asarray(physical["force_kg"], dtype=float)[:3] >= FINGERTIP_FORCE_LIMIT_KG
         for k in np.flatnonzero(at_cap != self._at_cap):
             finger = FINGER_LABELS[k]
+            text = (
+                f"{finger} at the {FINGERTIP_FORCE_LIMIT_KG:g} kg fingertip-force cap: the safety layer "
+                "lets it hold or open, not close further"
+            )
             cap = f"at the {FINGERTIP_FORCE_LIMIT_KG:g} kg cap"
-            self._open(t_s)  # a cleared state ends the lane's bar
-            change = rr.StateChange(state=cap) if at_cap[k] else rr.StateChange.cleared()
-            self.rec.log(f"{EVENTS_ENTITY}/{finger}_force_cap", change)
-            if at_cap[k]:
-                self.log_text(
-                    t_s,
-                    f"{finger} at the {FINGERTIP_FORCE_LIMIT_KG:g} kg fingertip-force cap: the safety "
-                    "layer lets it hold or open, not close further",
-                    level="WARN",
-                )
+            self.log_event(
+                t_s, f"{finger}_force_cap", cap if at_cap[k] else None, text if at_cap[k] else None
+            )
         self._at_cap = at_cap
         if self.kind.sim or self._hand_model is not None:
             from twin.kinematics import ClutchObserver
@@ -598,6 +644,8 @@ class RunRecording:
             links = self._observer.update(counts, strain_counts)
         if self.kind.sim:
             self.log_scalars("observer", t_s, {"inner_rad": links[:, 0], "outer_rad": links[:, 1]})
+            self._difference("inner_rad", t_s, links[:, 0], None)
+            self._difference("outer_rad", t_s, links[:, 1], None)
         if self._hand_model is not None and t_s - self._hand_posed_t_s >= 0.999 / HAND_POSE_RATE_HZ:
             self._hand_posed_t_s = t_s
             self._hand_model.set_angles(links, float(units.spread_counts_to_rad(counts[3])))
@@ -609,14 +657,20 @@ class RunRecording:
         self.log_scalars("command", t_s, {"position_counts": np.asarray(position_counts, dtype=float)[:3]})
         if phase != self._phase:
             self._phase = phase
-            self.log_text(t_s, f"phase: {phase}")
-            self.rec.log(f"{EVENTS_ENTITY}/phase", rr.StateChange(state=phase))
+            if phase == COMPRESS_PHASE and self._compress_start_s is None:
+                self._compress_start_s = float(t_s)
+            self.log_event(t_s, "phase", phase, f"phase: {phase}", level="INFO")
 
     def log_truth(self, t_s: float, truth: Mapping[str, ArrayLike]) -> None:
         """What only the simulator knows, beside what the sensors say: the fingertips' true contact
         force (N) and the true inner and outer joint angles (rad)."""
         keep = ("tip_contact_force_n", "inner_rad", "outer_rad")
         self.log_scalars("truth", t_s, {k: truth[k] for k in keep if k in truth})
+        if "tip_contact_force_n" in truth:
+            self._difference("tip_force_n", t_s, None, truth["tip_contact_force_n"])
+        for joint in ("inner_rad", "outer_rad"):
+            if joint in truth:
+                self._difference(joint, t_s, None, truth[joint])
 
     def log_contacts(self, t_s: float, points_m: ArrayLike, forces_n: ArrayLike) -> None:
         """Contact points and their normal forces as arrows in the 3-D scene (pointing into the pad)."""
@@ -625,7 +679,7 @@ class RunRecording:
         vectors = np.asarray(forces_n, dtype=float).reshape(-1, 3) * CONTACT_ARROW_M_PER_N
         if self._first(CONTACTS_ENTITY):
             self._sync_time()
-            arrows = rr.Arrows3D(origins=points - vectors, vectors=vectors, colors=[(220, 40, 40)])
+            arrows = rr.Arrows3D(origins=points - vectors, vectors=vectors, colors=[CONTACT_RGB])
             self.rec.log(CONTACTS_ENTITY, arrows)
         else:
             values = {"origins": points - vectors, "vectors": vectors}
@@ -652,7 +706,40 @@ class RunRecording:
                 raise ValueError(f"{path}: a time series takes a scalar or a 1-D array, got {arr.shape}")
             if path not in self._series_named:
                 self._name_series(path, field, arr.size, labels)
+            self._note_extremes(f"/{path}", t_s, arr)
             self._buffer(path, {"scalars": arr}, lambda p=path: _as_is(p, rr.Scalars))
+
+    def _note_extremes(self, path: str, t_s: float, values: np.ndarray) -> None:
+        """Keep each plotted entity's smallest and largest value (the y ranges of the closing blueprint),
+        and the positions' and commands' over the compress phase (its window's)."""
+        finite = values[np.isfinite(values)]
+        if not finite.size:
+            return
+        low, high = float(finite.min()), float(finite.max())
+        old = self._extremes.get(path)
+        self._extremes[path] = (low, high) if old is None else (min(old[0], low), max(old[1], high))
+        if path in _WINDOWED and self._compress_start_s is not None and t_s >= self._compress_start_s:
+            w = self._window_extremes
+            self._window_extremes = (low, high) if w is None else (min(w[0], low), max(w[1], high))
+
+    def _difference(
+        self, field: str, t_s: float, estimate: ArrayLike | None, truth: ArrayLike | None
+    ) -> None:
+        """plots/difference/<field>: an estimate minus the truth, at an instant both were logged at (each
+        half waits, a few rows at most, for the other; instants that never meet give no difference)."""
+        key = round(1e9 * t_s)
+        halves = self._halves.setdefault(field, ({}, {}))
+        side = 0 if estimate is not None else 1
+        value = np.array(estimate if estimate is not None else truth, dtype=float)  # a copy: it may wait
+        other = halves[1 - side].pop(key, None)
+        if other is None:
+            mine = halves[side]
+            mine[key] = value
+            while len(mine) > _UNPAIRED_KEPT:
+                mine.pop(next(iter(mine)))
+            return
+        diff = value - other if side == 0 else other - value
+        self.log_scalars(DIFFERENCE_STREAM, t_s, {field: diff})
 
     def _name_series(
         self, path: str, field: str, size: int, labels: Mapping[str, Sequence[str]] | None
@@ -665,12 +752,23 @@ class RunRecording:
         self._series_named.add(path)
         style = SERIES_STYLE.get(f"/{path}")
         if style is not None and len(style[0]) == size:
-            self.rec.log(path, series(style[0], light=style[1], width=style[2]), static=True)
+            self.rec.log(path, series_of(f"/{path}"), static=True)
         elif labels and field in labels:
             self.rec.log(path, rr.SeriesLines(names=names, colors=finger_colors(names)), static=True)
         if f"/{path}" not in self._plotted and f"/{path}" not in self._other_plots:
             self._other_plots.append(f"/{path}")
-            self._send_blueprint()
+
+    def log_event(
+        self, t_s: float, lane: str, state: str | None, text: str | None = None, level: str = "WARN"
+    ) -> None:
+        """A state on the lane events/<lane> from t_s on (None clears it: the lane's bar ends), and a
+        row in the text log when `text` is given: the phases, the force cap, a clipped or refused
+        command, a recovered hand cycle, a hand loop behind its schedule, lost pad frames (twin.rig)."""
+        self._open(t_s)
+        change = rr.StateChange(state=state) if state is not None else rr.StateChange.cleared()
+        self.rec.log(f"{EVENTS_ENTITY}/{lane}", change)
+        if text:
+            self.log_text(t_s, text, level=level)
 
     def log_text(self, t_s: float, text: str, level: str = "INFO") -> None:
         """A line in the run's text log (entity "log")."""
@@ -763,6 +861,7 @@ class RunRecording:
             self.rec.log(
                 TACTILE_POINTS_ENTITY, rr.Points3D(tactile, colors=[TACTILE_POINTS_RGB], radii=0.0015)
             )
+        self._log_fused(t_s, fused_points_hand, fused_triangles)
         if (
             self._last_surface_s is not None
             and t_s - self._last_surface_s < SURFACE_PERIOD_S - PERIOD_SLACK_S
@@ -788,7 +887,15 @@ class RunRecording:
                         vertex_positions=points[used], triangle_indices=faces, vertex_colors=colors[used]
                     ),
                 )
-        if fused_points_hand is not None:
+
+    def _log_fused(
+        self, t_s: float, fused_points_hand: ArrayLike | None, fused_triangles: ArrayLike | None
+    ) -> None:
+        """The fused cloud and mesh (hand frame) at FUSED_PERIOD_S."""
+        if fused_points_hand is not None and (
+            self._last_fused_s is None or t_s - self._last_fused_s >= FUSED_PERIOD_S - PERIOD_SLACK_S
+        ):
+            self._last_fused_s = float(t_s)
             fused = np.asarray(fused_points_hand, dtype=np.float32).reshape(-1, 3)
             self.rec.log(FUSED_CLOUD_ENTITY, rr.Points3D(fused, colors=[FUSED_RGB], radii=0.0006))
             if fused_triangles is not None:
@@ -821,6 +928,11 @@ class RunRecording:
     def close(self) -> None:
         """Flush and finish the .rrd; safe to call twice."""
         if not self._closed:
+            self._set_kind(  # the closing blueprint: y ranges from what was logged
+                y_ranges=tuple((path, lo, hi) for path, (lo, hi) in sorted(self._extremes.items())),
+                compress_start_s=self._compress_start_s,
+                window_y_range=self._window_extremes,
+            )
             if not self._blueprint_sent:
                 self._send_blueprint()
             self._closed = True
@@ -850,10 +962,34 @@ def _heat(x: ArrayLike) -> np.ndarray:
     return ((1 - frac) * _HEAT_STOPS[lo] + frac * _HEAT_STOPS[lo + 1]).astype(np.uint8)
 
 
-def _pad_label(pad: str) -> str:
-    """A pad's short name on the canvas: "F1 tip", "F2 inner", "palm"."""
-    finger = finger_of(pad)
-    return f"{finger} {pad.split('_', 1)[1]}" if finger else pad
+def _pad_labels(pads: list[_PadImage]) -> tuple[np.ndarray, list[str], list[tuple[int, int, int]]]:
+    """Where the canvas's labels go (mm), their text and colours: each finger's name once over its
+    column (its colour), the rows' names ("tip", "inner") left of them and "palm" left of the palm. Six
+    full names over 30 mm columns ran into each other; two letters a column do not."""
+    place = {p.path.rsplit("/", 1)[1]: p for p in pads}
+    where, labels, colors = [], [], []
+    for finger in FINGERS:
+        top = place.get(f"{finger.lower()}_tip")
+        if top is not None:
+            where.append([top.corner_mm[0] + top.pitch_mm * top.shape[1] / 2, top.corner_mm[1] - 8.0])
+            labels.append(finger)
+            colors.append(FINGER_RGB[finger])
+    for row in ("tip", "inner", "palm"):
+        pad = place.get("f1_" + row if row != "palm" else row)
+        if pad is not None:
+            where.append([pad.corner_mm[0] - 14.0, pad.corner_mm[1] + pad.pitch_mm * pad.shape[0] / 2])
+            labels.append(row)
+            colors.append((200, 200, 200))
+    return np.array(where, dtype=float), labels, colors
+
+
+def _colour_bar_place(pads: list[_PadImage]) -> tuple[float, float, float]:
+    """The colour bar's left edge and its top and bottom (mm): right of the pads, over the inner pads'
+    and the palm's height."""
+    right = max(p.corner_mm[0] + p.pitch_mm * p.shape[1] for p in pads)
+    top = min(p.corner_mm[1] for p in pads if p.path.endswith("_inner"))
+    bottom = max(p.corner_mm[1] + p.pitch_mm * p.shape[0] for p in pads)
+    return right + 12.0, top, bottom
 
 
 def _name(model: mujoco.MjModel, kind: str, i: int) -> str:
@@ -982,7 +1118,8 @@ def error_colors(error_mm: ArrayLike, scale_mm: float = POINT_ERROR_SCALE_MM) ->
     from matplotlib import colormaps
 
     fraction = np.clip(np.asarray(error_mm, dtype=float) / scale_mm, 0.0, 1.0)
-    return (255 * colormaps[POINT_ERROR_COLORMAP](fraction)[:, :3]).astype(np.uint8)
+    position = POINT_ERROR_COLORMAP_FROM + (1.0 - POINT_ERROR_COLORMAP_FROM) * fraction
+    return (255 * colormaps[POINT_ERROR_COLORMAP](position)[:, :3]).astype(np.uint8)
 
 
 def _short_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -1048,6 +1185,59 @@ def read_rrd_entities(rrd_path: Path | str) -> dict[str, int]:
     for chunk in _chunks(rrd_path):
         counts[chunk.entity_path] = counts.get(chunk.entity_path, 0) + chunk.num_rows
     return counts
+
+
+def recorded_plot_facts(rrd_paths: Sequence[Path | str]) -> dict[str, object]:
+    """What a blueprint takes from recordings already written (RunKind's fields): each plotted entity's
+    smallest and largest value (y_ranges), when the compress phase began (compress_start_s) and the
+    positions' and commands' range from then on (window_y_range). A file that is missing or cannot be
+    read (one still being written) is passed over."""
+    extremes: dict[str, tuple[float, float]] = {}
+    start: float | None = None
+    state = rr.StateChange.descriptor_state().component
+    readable = []
+    for path in rrd_paths:
+        try:
+            for t, cells in _rows(path, f"/{EVENTS_ENTITY}/phase", [state]):
+                if start is None and t is not None and cells[state] == [COMPRESS_PHASE]:
+                    start = t
+            readable.append(path)
+        except Exception:  # a missing, partial or foreign file: its ranges are not known
+            continue
+    window: tuple[float, float] | None = None
+    for path in readable:
+        try:
+            chunks = list(_chunks(path, components=[_SCALARS], is_static=False))
+        except Exception:
+            continue
+        for chunk in chunks:
+            batch = chunk.to_record_batch()
+            if _SCALARS not in batch.schema.names:
+                continue
+            rows = [np.asarray(v, dtype=float) for v in batch.column(_SCALARS).to_pylist() if v is not None]
+            values = np.concatenate(rows) if rows else np.zeros(0)
+            values = values[np.isfinite(values)]
+            if not values.size:
+                continue
+            entity = chunk.entity_path
+            old = extremes.get(entity, (np.inf, -np.inf))
+            extremes[entity] = (min(old[0], float(values.min())), max(old[1], float(values.max())))
+            if entity in _WINDOWED and start is not None and TIMELINE in batch.schema.names:
+                t = batch.column(TIMELINE).to_numpy(zero_copy_only=False)
+                t_s = t.astype("timedelta64[ns]").astype(np.int64) / 1e9 if t.dtype.kind == "m" else t
+                cells = batch.column(_SCALARS).to_pylist()
+                late = [
+                    np.asarray(v, dtype=float) for ti, v in zip(t_s, cells, strict=True) if v and ti >= start
+                ]
+                if late:
+                    w = np.concatenate(late)
+                    lo, hi = float(np.nanmin(w)), float(np.nanmax(w))
+                    window = (lo, hi) if window is None else (min(window[0], lo), max(window[1], hi))
+    return {
+        "y_ranges": tuple((entity, lo, hi) for entity, (lo, hi) in sorted(extremes.items())),
+        "compress_start_s": start,
+        "window_y_range": window,
+    }
 
 
 def read_rrd_scalars(

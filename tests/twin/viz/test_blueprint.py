@@ -12,6 +12,7 @@ import rerun as rr
 from twin.cli import main
 from twin.viz.blueprint import (
     DEPTH_ENTITY,
+    EVENTS_VIEW,
     FINGER_RGB,
     FUSED_CLOUD_ENTITY,
     MESH_ENTITY,
@@ -63,7 +64,7 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
     )  # no foam in a free run
     scenes = [v for t, v in views.items() if t.startswith(scene)]
     assert len(scenes) == 1 and scenes[0]["kind"] == "3D" and scenes[0]["origin"] == "/world"
-    coloured_by_error = "stereo points by error to the truth: green 0 to red >= 5 mm"
+    coloured_by_error = "stereo points by error to the truth: pale violet 0 to purple >= 5 mm"
     assert (coloured_by_error in next(t for t in views if t.startswith(scene))) == (kind.stereo and kind.sim)
     position = views["finger position (counts), command light: F1 red, F2 blue, F3 green"]
     assert position["contents"] == ["/plots/hand/position_counts", "/plots/command/position_counts"]
@@ -74,7 +75,7 @@ def test_each_kind_of_run_has_its_views(tmp_path, name):
     ):
         assert views[title]["kind"] == "TimeSeries"
     assert "/plots/hand/force_cap_kg" in views["fingertip force, eq. 3 (kg); grey: the 2 kg cap"]["contents"]
-    assert views["events: phase, fingers at the force cap"] == {
+    assert views[EVENTS_VIEW] == {
         "kind": "StateTimeline",
         "origin": "/events",
         "contents": ["$origin/**"],
@@ -135,7 +136,7 @@ def test_plots_share_one_time_axis_and_the_devices_plots_span_the_devices_range(
     linked = {n for n, link in by_name("TimeAxis:link", "/TimeAxis").items() if link == 2}
     plots = {n for n, kind in kinds.items() if kind == "TimeSeries"}
     assert plots - linked == {"compression window, last 4 s (counts)"}
-    assert "events: phase, fingers at the force cap" in linked  # the events' lanes too
+    assert EVENTS_VIEW in linked  # the events' lanes too
     ranges = by_name("ScalarAxis:range", "/ScalarAxis")
     assert ranges["finger position (counts), command light: F1 red, F2 blue, F3 green"] == [0.0, 17800.0]
     assert ranges["fingertip force, eq. 3 (kg); grey: the 2 kg cap"] == [0.0, 2.5]

@@ -12,12 +12,12 @@ from twin.viz.rerun_log import (
     CLOUD_ENTITY,
     FUSED_CLOUD_ENTITY,
     FUSED_MESH_ENTITY,
+    FUSED_PERIOD_S,
     HAND_ENTITY,
     IMAGE_PERIOD_S,
     MESH_ENTITY,
     RECTIFIED_ENTITY,
     STEREO_ENTITY,
-    SURFACE_PERIOD_S,
     TACTILE_POINTS_ENTITY,
     RunRecording,
     _short_triangles,
@@ -57,7 +57,7 @@ def logged(tmp_path_factory):
             hand_pose = backend.hand_pose_in_world()
             rec.log_stereo_setup(calibration, hand_pose)
             for i in range(FRAMES):
-                backend.world.advance_to((i + 1) * SURFACE_PERIOD_S)  # every frame's surfaces logged
+                backend.world.advance_to((i + 1) * FUSED_PERIOD_S)  # every frame's surfaces logged
                 frame = backend.stereo.read()
                 r = reconstruct(frame.left, frame.right, rectifier, tracker, matcher=matcher, mesh_stride=2)
                 fused = r.points_hand[::4]
@@ -158,19 +158,20 @@ def test_stereo_without_setup_or_reconstruction(tmp_path):
     assert "left camera" not in read_rrd_views(path)
 
 
-def test_images_and_depth_at_10_fps_and_surfaces_at_5_hz_of_a_30_fps_pair(logged, tmp_path):
-    """A 30 fps pair: every third image pair with its depth, every sixth cloud and mesh."""
+def test_images_and_depth_at_10_fps_surfaces_at_5_hz_the_fused_at_2_hz_of_a_30_fps_pair(logged, tmp_path):
+    """A 30 fps pair: every third image pair with its depth, every sixth cloud, every 15th fused mesh."""
     *_, inputs = logged
     frame, r, fused, tactile = inputs[0]
     path = tmp_path / "rates.rrd"
     with RunRecording(path) as rec:
         rec.log_stereo_setup(logged[1])
-        for i in range(12):
+        for i in range(16):
             rec.log_stereo(i / 30, frame.left, frame.right, r, fused, np.array([[0, 1, 2]]), tactile)
     entities = read_rrd_entities(path)
-    assert entities[f"/{RECTIFIED_ENTITY}/depth"] == 4
-    assert entities[f"/{STEREO_ENTITY}/left/image"] == entities[f"/{STEREO_ENTITY}/right/image"] == 4
-    assert entities[f"/{CLOUD_ENTITY}"] == entities[f"/{FUSED_MESH_ENTITY}"] == 2
+    assert entities[f"/{RECTIFIED_ENTITY}/depth"] == 6
+    assert entities[f"/{STEREO_ENTITY}/left/image"] == entities[f"/{STEREO_ENTITY}/right/image"] == 6
+    assert entities[f"/{CLOUD_ENTITY}"] == 3
+    assert entities[f"/{FUSED_MESH_ENTITY}"] == entities[f"/{FUSED_CLOUD_ENTITY}"] == 2  # at 0 and 0.5 s
     times = [t for t, _ in read_rrd_images(path, f"{STEREO_ENTITY}/left/image")]
     np.testing.assert_allclose(np.diff(times), IMAGE_PERIOD_S, atol=1e-6)
     depth_times = [t for t, _ in read_rrd_images(path, f"{RECTIFIED_ENTITY}/depth")]

@@ -3,16 +3,17 @@
 Each row of interval_calibration.csv is a hidden run of benchmarks/identification.py that ended with a
 95 % interval (a number or the interval alone): its estimate (the number, or the one withheld), its
 interval and the twin's truth. Draws 2038 to 2042, read off BENCHMARKS.md as committed in 981c082,
-94e6c6b, 89799df, with this file (2041) and in b82e7d1 (2042, MuJoCo 4.0 and the calibrated foam) (values
-to the table's 3-4 significant figures); 2038-2039 with the interval before calibration (interval_scale
-1), 2040 with the scale 2038-2039 gave (0.585), 2041 with the scale 2038-2040 gave (0.725), 2042 at 1. A run's score is its error in units of its own interval's sigma
-before calibration, |log(E / E_true)| / sigma; the calibrated multiplier of sigma is the
-ceil(0.95 (n + 1))-th smallest score, so that on a new run exchangeable with these the interval holds
-the truth with probability at least 95 % (split conformal prediction with a locally weighted score:
-Lei, G'Sell, Rinaldo, Tibshirani & Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). Scored on
-the draw after the ones it was set on, that multiplier covered too little twice
-(twin.sim.modulus.INTERVAL_SCALE says how much), so the method ships at scale 1;
-tests/benchmarks/test_interval_calibration.py checks that the scale shipped covers the recorded runs.
+94e6c6b, 89799df, with this file (2041) and in b82e7d1 (2042, MuJoCo 4.0 and the calibrated foam)
+(values to the table's 3-4 significant figures); 2038-2039 with the interval before calibration
+(interval_scale 1), 2040 with the scale 2038-2039 gave (0.585), 2041 with the scale 2038-2040 gave
+(0.725), 2042 at 1. A run's score is its error in units of its own interval's sigma before calibration,
+|log(E / E_true)| / sigma; the calibrated multiplier of sigma is the ceil(0.95 (n + 1))-th smallest
+score, so that on a new run exchangeable with these the interval holds the truth with probability at
+least 95 % (split conformal prediction with a locally weighted score: Lei, G'Sell, Rinaldo, Tibshirani &
+Wasserman 2018, J. Am. Stat. Assoc. 113:1094, sec. 5.2). Scored on the draw after the ones it was set
+on, that multiplier covered too little twice (twin.sim.modulus.INTERVAL_SCALE says how much), so the
+method ships at scale 1; tests/benchmarks/test_interval_calibration.py checks that the scale shipped
+covers the recorded runs.
 
 `python benchmarks/run_all.py --only interval_calibration` scores each draw prequentially (BENCHMARKS.md)
 and draws the scores against a calibrated Gaussian's (interval_calibration.png).

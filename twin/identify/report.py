@@ -207,20 +207,32 @@ def log_rerun(ident: Identification, path: Path) -> Path:
     rec = rr.RecordingStream("barrett_twin", recording_id=ident.run_path.name)
     rec.save(path)
     eye = look_target_of(ident.run_path / RRD_NAME)
-    kind = dataclasses.replace(kind_of_run(ident.run_path, eye), identify=True)
+    kind = kind_of_run(ident.run_path, eye)
+    series = {  # the identification's own series: its views' y ranges span them (the run's are in kind)
+        f"/plots/identify/f{f.finger}/{name}": np.asarray(values, dtype=float)
+        for f in ident.fingers
+        for name, values in (
+            ("tactile_n", f.reaction_tactile_n),
+            ("gauge_eq4_n", f.reaction_torque_n),
+            ("model_n", f.reaction_model_n),
+            ("indentation_mm", f.delta_m * 1e3),
+        )
+    }
+    spans = tuple(
+        (entity, float(np.nanmin(v)), float(np.nanmax(v)))
+        for entity, v in series.items()
+        if np.isfinite(v).any()
+    )
+    kind = dataclasses.replace(kind, identify=True, y_ranges=kind.y_ranges + spans)
     rec.send_blueprint(run_blueprint(kind), make_active=True, make_default=True)
     markdown = rr.TextDocument(result_markdown(ident), media_type=rr.MediaType.MARKDOWN)
     rec.log(IDENTIFY_RESULT_ENTITY, markdown, static=True)
     names = {**IDENTIFY_QUANTITIES, "indentation_mm": "indentation (mm)"}
     for f in ident.fingers:
         times = rr.TimeColumn(TIMELINE, duration=f.t_s)
-        for name, values in (
-            ("tactile_n", f.reaction_tactile_n),
-            ("gauge_eq4_n", f.reaction_torque_n),
-            ("model_n", f.reaction_model_n),
-            ("indentation_mm", f.delta_m * 1e3),
-        ):
+        for name in ("tactile_n", "gauge_eq4_n", "model_n", "indentation_mm"):
             entity = f"plots/identify/f{f.finger}/{name}"
+            values = series[f"/{entity}"]
             # named and coloured in the file itself, so the series read right even opened on their own
             label = f"F{f.finger} {names[name]}"
             rec.log(entity, rr.SeriesLines(names=[label], colors=[FINGER_RGB[f"F{f.finger}"]]), static=True)

@@ -176,7 +176,7 @@ def test_the_rerun_file_carries_the_result_and_a_blueprint_that_shows_it(sphere_
     identification tab whose first view shows that document."""
     from rerun.chunk import RrdReader
 
-    from twin.viz.rerun_log import read_rrd_blueprint
+    from twin.viz.rerun_log import read_rrd_blueprint, read_rrd_scalars
 
     code, printed, out = sphere_identified
     assert code == 0
@@ -200,3 +200,20 @@ def test_the_rerun_file_carries_the_result_and_a_blueprint_that_shows_it(sphere_
     }
     assert views["TextDocument"] == ["/identify/result"]
     assert "3D" in views and "TimeSeries" in views  # the run's own views beside it
+    # the identification's own views ranged over the series identify.rrd holds (opened without twin view)
+    blueprint = read_rrd_blueprint(rrd)
+    ranged = 0
+    for path, columns in blueprint.items():
+        if columns.get("ViewBlueprint:space_origin") != ["/plots/identify"]:
+            continue
+        axis = {k: v for p, c in blueprint.items() if p.startswith(f"{path}/") for k, v in c.items()}
+        assert "ScalarAxis:range" in axis, columns.get("ViewBlueprint:display_name")
+        low, high = axis["ScalarAxis:range"][0]
+        contents = {
+            c for p, cs in blueprint.items() if p.startswith(path) for c in cs.get("ViewContents:query", [])
+        }
+        for entity in contents:
+            _, values = read_rrd_scalars(rrd, entity)
+            assert low <= np.nanmin(values) and np.nanmax(values) <= high, (entity, low, high)
+        ranged += 1
+    assert ranged == 4  # three fingers' reaction forces and the indentations

@@ -88,6 +88,7 @@ def _simulate(args: tuple) -> tuple[float, np.ndarray] | None:
             duration_s=hidden.DURATION_S,
             object_name=foam.name,
             profile=profile,
+            viewer=False,
         )
         s, _, _, _, shares = run_stiffness(scratch / "run")
         return s, shares

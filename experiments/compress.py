@@ -224,12 +224,14 @@ def run_compress(
     argv: list[str] | None = None,
     stereo_box: tuple[int, int, int, int] | None = None,
     shape_model: object = None,
+    viewer: bool = True,
 ) -> RunOutcome:
     """The compress procedure on any backend, recorded to run_dir (what `twin run compress` does).
 
     `object_name` is what is in the hand: the sim knows it, on hardware it is the researcher's word.
     `stereo_box`: where the backend has cameras, the object's box on the first frame (see run_experiment).
     `shape_model`: a trained twin.shape.model.ShapeModel predicting the contour live (`--predict`).
+    `viewer=False`: no run.rrd (the twin's own simulations, which read the streams alone).
     """
     from twin.session import run_experiment
 
@@ -245,4 +247,5 @@ def run_compress(
         argv=argv,
         stereo_box=stereo_box,
         shape_model=shape_model,
+        viewer=viewer,
     )

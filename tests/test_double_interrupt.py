@@ -47,3 +47,30 @@ def test_a_second_ctrl_c_never_leaves_the_run_running(gap_s: float, tmp_path: Pa
     assert proc.returncode == 130 and "Traceback" not in err, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "is marked 'interrupted'" in lines[0], err
+
+
+def test_an_interrupt_in_a_deferred_block_waits_for_its_end_whichever_thread_the_kernel_hands_it():
+    """Blocking SIGINT in the main thread's mask sent it to another thread (Rerun's, a driver's), and
+    Python raised it inside the block anyway (seen: a second Ctrl-C on a loaded host left run.json
+    'running'). With a live thread beside it, the interrupt now comes after the block, once."""
+    import os
+    import threading
+
+    from twin.processes import interrupts_deferred
+
+    threading.Thread(target=time.sleep, args=(3,), daemon=True).start()
+    for _ in range(5):
+        reached = []
+        with pytest.raises(KeyboardInterrupt):
+            with interrupts_deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                os.kill(os.getpid(), signal.SIGINT)
+                with interrupts_deferred():  # nested: the inner end hands it to the outer block
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(0.05)
+                    reached.append("inner")
+                time.sleep(0.05)
+                reached.append("outer")
+            time.sleep(0.05)  # delivered here at the latest
+        assert reached == ["inner", "outer"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -46,3 +46,23 @@ def test_api_run_without_cameras_imports_no_vision(tmp_path: Path):
     # OpenGL is MuJoCo's own at its import here: the library keeps MUJOCO_GL=egl as the default for a
     # caller's own mujoco.Renderer (twin/__init__.py); the CLI turns that default context off.
     assert _loaded(modules, ("twin.vision", "cv2", "scipy.ndimage", "skimage")) == []
+
+
+def test_the_twins_own_simulations_write_no_recording_and_import_no_rerun(tmp_path: Path):
+    """twin.sim.modulus's simulations read the run's streams alone: `viewer=False` writes every stream
+    and no run.rrd, and never imports Rerun (a second per worker, and 15-20 % of each simulation)."""
+    script = (
+        "from twin.experiments.compress import run_compress\n"
+        "from twin.sim.backend import SimBackend\n"
+        "from twin.sim.foam import get_object\n"
+        "from twin.recording import open_run\n"
+        "run_compress(SimBackend(get_object('block'), seed=1), 'run', duration_s=0.5, object_name='block',"
+        " viewer=False)\n"
+        "run = open_run('run')\n"
+        "hand = run.stream('hand')\n"
+        "assert run.status == 'complete' and len(hand) == 16, (run.status, len(hand))"
+    )
+    modules = _modules_after(script, tmp_path)
+    assert "twin.rig" in modules and _loaded(modules, ("rerun", "twin.viz")) == []
+    assert not (tmp_path / "run" / "run.rrd").exists()
+    assert (tmp_path / "run" / "run.json").is_file()

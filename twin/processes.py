@@ -52,18 +52,27 @@ def sigterm_as_interrupt() -> bool:
 
 @contextlib.contextmanager
 def interrupts_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM held back (blocked) for the block, delivered when it ends: what must not be
-    cut in half by a second Ctrl-C (a run's final status, the hand's idle) finishes first. Only the
-    main thread's mask changes (Python runs its handlers there); elsewhere this does nothing."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+    """SIGINT and SIGTERM held back for the block, delivered when it ends: what must not be cut in half by
+    a second Ctrl-C (a run's final status, the hand's idle) finishes first. Python runs signal handlers in
+    the main thread, so the block swaps in a handler that only notes the signal and raises it again
+    after. (Blocking them in the main thread's mask does not hold: the kernel then hands a signal to any
+    other thread, Rerun's or a driver's, and Python still raises it in the main thread, inside the
+    block.) Elsewhere than the main thread this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    held = {signal.SIGINT, signal.SIGTERM}
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    held: list[int] = []
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(ValueError, OSError):
+            previous[sig] = signal.signal(sig, lambda signum, _frame: held.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        if held:
+            signal.raise_signal(held[0])  # to the handler that was there: a KeyboardInterrupt now
 
 
 def die_with_parent() -> None:

@@ -115,6 +115,7 @@ def run_experiment(
     safety: SafetyLayer | None = None,
     stereo_box: tuple[int, int, int, int] | None = None,
     shape_model: Any = None,
+    viewer: bool = True,
 ) -> RunOutcome:
     """Connect the backend, run the controller for duration_s, record to run_dir and run.rrd.
 
@@ -122,10 +123,9 @@ def run_experiment(
     (twin.vision.pipeline); `stereo_box` is the object's bounding box on the first frame (x, y, w, h
     in the rectified left view), by default the one the backend suggests (the sim knows its foam).
     `shape_model` (twin.shape.model.ShapeModel) predicts the object's contour from every hand reading;
-    with cameras the measured contour is recorded beside it.
+    with cameras the measured contour is recorded beside it. `viewer=False` writes no run.rrd (nor imports
+    Rerun): the twin's own simulations (twin.sim.modulus) read only the run's streams.
     """
-    from twin.viz.rerun_log import RunKind, RunRecording
-
     if not duration_s > 0:
         raise ConfigError(f"--duration must be > 0 s, got {duration_s:g}")
     if stereo_box is not None and backend.stereo is not None:
@@ -164,17 +164,21 @@ def run_experiment(
             writer.update_metadata(
                 calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
             )
-            kind = RunKind(
-                experiment=str(experiment.get("name", "compress")),
-                sim=backend.scene() is not None,
-                stereo=stereo_pipeline is not None,
-                predict=shape_model is not None,
-                tactile=backend.tactile is not None,
-            )
-            recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
+            recording = None
+            if viewer:
+                from twin.viz.rerun_log import RunKind, RunRecording
+
+                kind = RunKind(
+                    experiment=str(experiment.get("name", "compress")),
+                    sim=backend.scene() is not None,
+                    stereo=stereo_pipeline is not None,
+                    predict=shape_model is not None,
+                    tactile=backend.tactile is not None,
+                )
+                recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
             try:
-                scene_logger = _scene_logger(backend, recording)
-                if stereo_pipeline is not None:
+                scene_logger = _scene_logger(backend, recording) if recording is not None else None
+                if stereo_pipeline is not None and recording is not None:
                     log_setup = getattr(recording, "log_stereo_setup", None)
                     if log_setup is not None:
                         log_setup(stereo_pipeline.calibration, backend.hand_pose_in_world())
@@ -190,14 +194,16 @@ def run_experiment(
                     shape_model=shape_model,
                 )
                 result = rig.run(controller, duration_s, progress)
-                for line in result.warnings:  # in the viewer's log too, where the run's curves are
-                    recording.log_text(duration_s, line, level="WARN")
                 recoveries = backend.diagnostics().get("hand_recoveries") or []
-                if recoveries:
-                    line = f"the hand driver recovered {len(recoveries)} cycle(s); first: {recoveries[0]}"
-                    recording.log_text(duration_s, line, level="WARN")
+                if recording is not None:
+                    for line in result.warnings:  # in the viewer's log too, where the run's curves are
+                        recording.log_text(duration_s, line, level="WARN")
+                    if recoveries:
+                        line = f"the hand driver recovered {len(recoveries)} cycle(s); first: {recoveries[0]}"
+                        recording.log_text(duration_s, line, level="WARN")
             finally:
-                recording.close()
+                if recording is not None:
+                    recording.close()
             for line in result.warnings:
                 writer.warn(line)
         except BaseException as exc:  # what went wrong is kept even when the run failed

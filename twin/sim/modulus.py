@@ -433,6 +433,7 @@ def _simulate(foam: FoamParams) -> tuple[float, np.ndarray, np.ndarray, str]:
             duration_s=_PROCEDURE["duration_s"],
             object_name=foam.name,
             profile=_PROCEDURE["profile"],
+            viewer=False,  # only its streams are read: no run.rrd, no Rerun in the worker
         )
         s, _, _, contact, shares = run_stiffness(scratch / "run", _PROCEDURE["cycles"])
         return s, contact, shares, ""

@@ -788,6 +788,8 @@ class RunRecording:
         """
         from twin.vision.reconstruct import Rectifier
 
+        if self.kind.sim:  # matplotlib's colour maps loaded now, not mid-run where a Ctrl-C could land in
+            error_colors([0.0])  # its C extension's import (a crash at exit, seen on a loaded host)
         self._open(None)
         pose = np.eye(4) if hand_from_world is None else np.asarray(hand_from_world, dtype=np.float64)
         if pose.shape != (4, 4):

@@ -13,10 +13,9 @@ from twin.recording.reader import Run
 from twin.sim.fit import FitError, Measured, fit_run, fit_window_s, foam_of_run, residuals
 from twin.sim.replay import Commands, replay
 
-pytestmark = pytest.mark.xdist_group("realtime")  # two replay processes: keep off the wall-clock tests
-
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("sphere")  # on the worker that holds the session's sphere run
 def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
     run = Run(sphere_run)
     commands = Commands.from_run(run, until_s=fit_window_s(run))
@@ -35,6 +34,7 @@ def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("sphere")  # beside the identification it starts from (its session fixture)
+# (xdist joins every group a test is marked with into one name: this module has no module-wide group)
 def test_the_fit_finds_the_modulus_within_3_percent_and_holds_what_the_run_cannot_tell(
     sphere_run, sphere_identified, tmp_path, capsys
 ):

@@ -33,6 +33,7 @@ SECTIONS = (
     "identification",
     "interval_calibration",
     "identifiability",
+    "nu_from_cameras",
     "identify_speed",
     "shape_network",
     "sweep_throughput",

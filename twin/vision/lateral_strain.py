@@ -5,10 +5,15 @@ in the grasp. Two pairs on opposite sides (twin.sim.cameras PLACEMENTS `lateral`
 gaps the fingers leave along the palm's x) see both x faces: their distance is the object's width,
 and a rigid shift cancels in it. The axial strain comes from the hand: in the compress grasp the distal
 links lie flat on the object's top, so the downward-facing taxels' height is the top's (kinematics).
+The two strains are read as E and nu through the twin (read_modulus_and_poisson): in the grasp the
+fingers also hold the object's y sides, more on a soft foam, so -eps_x/eps_z is nu only for a free
+compression; the twin, run with the same cameras and code, knows by how much.
 Backend-free: hand-frame point clouds and taxel poses in, numbers out.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -97,3 +102,69 @@ def nu_from_ratio(ratio: float, poisson: NDArray[np.float64], simulated_ratio: N
     if not slope > 0:
         raise ValueError("the twin's strain ratio does not grow with the Poisson ratio here")
     return float((ratio - intercept) / slope)
+
+
+STRAIN_NOISE = (0.002, 0.003)
+"""The scatter taken for a run's eps_x (two pairs' width) and eps_z (the downward taxels' height): on the
+tuning runs (seeds 101-112) the width's strain was within 0.001-0.004 of the truth's affine strain, the
+taxels' top within 0.1-0.6 mm of the true top. The weights of the two strains, and the noise term of
+the interval (its coverage is measured on held-out runs: benchmarks/nu_from_cameras.py)."""
+Z_95 = 1.96
+
+
+@dataclass(frozen=True)
+class StrainReading:
+    """E and nu read together from the grasp's strains, each with its 95 % interval."""
+
+    young_pa: float
+    poisson: float
+    young_95_pa: tuple[float, float]
+    poisson_95: tuple[float, float]
+
+
+def _design(log_e: NDArray[np.float64], poisson: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.column_stack([np.ones_like(log_e), log_e, log_e**2, poisson, log_e * poisson])
+
+
+def read_modulus_and_poisson(
+    strains: tuple[float, float],
+    young_pa: NDArray[np.float64],
+    poisson: NDArray[np.float64],
+    simulated_strains: NDArray[np.float64],
+) -> StrainReading:
+    """(E, nu) whose strains under the grasp the twin puts nearest the run's `strains` (eps_x, eps_z):
+    each strain fitted over the simulations (`simulated_strains`, one row per (young_pa, poisson)) as a
+    quadratic in log E with a linear nu and their product, the fit searched over the simulated box
+    (log E by 0.01, nu by 0.001), the residuals weighted by STRAIN_NOISE. The grasp's axial strain
+    carries mostly E (the balanced grasp's force is set), the lateral one E and nu.
+    The 95 % intervals: the two strains' scatter (STRAIN_NOISE and the fit's own residuals, in
+    quadrature) carried through the fit's slopes at the estimate (their 2x2 Jacobian inverted)."""
+    log_e = np.log(np.asarray(young_pa, dtype=float))
+    nu = np.asarray(poisson, dtype=float)
+    sim = np.asarray(simulated_strains, dtype=float).reshape(-1, 2)
+    design = _design(log_e, nu)
+    coef = np.linalg.lstsq(design, sim, rcond=None)[0]
+    dof = max(len(sim) - design.shape[1], 1)
+    residual_var = ((sim - design @ coef) ** 2).sum(axis=0) / dof
+    sigma = np.sqrt(np.asarray(STRAIN_NOISE) ** 2 + residual_var)
+    grid_e = np.arange(log_e.min(), log_e.max() + 1e-9, 0.01)
+    grid_nu = np.arange(nu.min(), nu.max() + 1e-9, 0.001)
+    ge, gn = (g.ravel() for g in np.meshgrid(grid_e, grid_nu))
+    predicted = _design(ge, gn) @ coef
+    cost = (((predicted - np.asarray(strains, dtype=float)) / sigma) ** 2).sum(axis=1)
+    best = int(np.argmin(cost))
+    le, n = float(ge[best]), float(gn[best])
+    d_dloge = np.array([0.0, 1.0, 2.0 * le, 0.0, n]) @ coef  # (2,): each strain's slope in log E
+    d_dnu = np.array([0.0, 0.0, 0.0, 1.0, le]) @ coef
+    jacobian = np.column_stack([d_dloge, d_dnu])  # strains from (log E, nu)
+    if abs(np.linalg.det(jacobian)) < 1e-12:
+        raise ValueError("the twin's strains do not tell E and nu apart here")
+    inverse = np.linalg.inv(jacobian)
+    cov = inverse @ np.diag(sigma**2) @ inverse.T
+    half_e, half_nu = Z_95 * np.sqrt(np.diag(cov))
+    return StrainReading(
+        float(np.exp(le)),
+        n,
+        (float(np.exp(le - half_e)), float(np.exp(le + half_e))),
+        (n - float(half_nu), n + float(half_nu)),
+    )

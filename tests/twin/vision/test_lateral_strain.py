@@ -70,3 +70,25 @@ def test_a_rigid_shift_moves_each_face_but_not_the_width(seen):
 def test_a_face_out_of_view_is_one_clear_error():
     with pytest.raises(ValueError, match="not in view"):
         ls.face_position_m(np.zeros((5, 3)), 1.0, PALM_SURFACE_Z_M, BLOCK.size_m[2])
+
+
+def _hooke(young_pa: np.ndarray, poisson: np.ndarray, stress_pa: float) -> np.ndarray:
+    """(eps_x, eps_z) of a free block under a uniaxial stress (Hooke): eps_z = -s/E, eps_x = -nu eps_z."""
+    eps_z = -stress_pa / young_pa
+    return np.column_stack([-poisson * eps_z, eps_z])
+
+
+def test_the_joint_read_inverts_hookes_law_within_its_interval():
+    """Strains of a free block under a set stress (the balanced grasp's force is set) at the twin's grid
+    of E x nu: blocks between the grid's points are read back, E and nu each within its 95 % interval."""
+    young = np.repeat([28e3, 40e3, 57e3], 3)
+    poisson = np.tile([0.2, 0.275, 0.35], 3)
+    stress_pa = 5e3
+    grid = _hooke(young, poisson, stress_pa)
+    for e_true, nu_true in ((33e3, 0.31), (48e3, 0.22)):
+        strains = _hooke(np.array([e_true]), np.array([nu_true]), stress_pa)[0]
+        reading = ls.read_modulus_and_poisson(tuple(strains), young, poisson, grid)
+        assert reading.poisson_95[0] <= nu_true <= reading.poisson_95[1]
+        assert reading.young_95_pa[0] <= e_true <= reading.young_95_pa[1]
+        assert reading.poisson == pytest.approx(nu_true, abs=0.01)
+        assert reading.young_pa == pytest.approx(e_true, rel=0.02)

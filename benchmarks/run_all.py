@@ -34,6 +34,7 @@ SECTIONS = (
     "identification",
     "interval_calibration",
     "identifiability",
+    "nu_from_cameras",
     "identify_speed",
     "shape_network",
     "sweep_throughput",

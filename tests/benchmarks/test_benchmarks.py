@@ -96,3 +96,22 @@ def test_punch_errors_count_only_what_lies_outside_the_fem_bracket():
     assert outside_bracket(10.0, 9.0, 11.0) == 0.0
     assert outside_bracket(12.1, 9.0, 11.0) == pytest.approx(0.1)
     assert outside_bracket(8.1, 9.0, 11.0) == pytest.approx(-0.1)
+
+
+@pytest.mark.slow
+def test_two_opposite_pairs_see_the_poisson_ratio_in_the_grasp():
+    """The benchmark's statistic moves with nu: the fast block squeezed at nu 0.2 and 0.35 (same E,
+    placement and seed), its width grows and its top sinks, and -eps_x/eps_z rises by over 0.1 (the
+    benchmark's simulations: 0.14-0.26 over that range)."""
+    from dataclasses import replace
+
+    from benchmarks import nu_from_cameras
+    from twin.sim.foam import LIBRARY
+
+    ratios = []
+    for nu in (0.2, 0.35):
+        seen = nu_from_cameras.observe(replace(LIBRARY["block"], young_pa=45e3, poisson=nu), seed=7)
+        eps_x, eps_z = seen.strains()
+        assert eps_x > 0 > eps_z
+        ratios.append(seen.ratio())
+    assert ratios[1] - ratios[0] > 0.1

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -82,10 +82,11 @@ class SimBackend(Backend):
         stereo: bool = False,
         stereo_render_native: bool = False,
         stereo_calibration_file: Path | None = None,
-        stereo_placement: CameraPlacement | None = None,
+        stereo_placement: CameraPlacement | Sequence[CameraPlacement] | None = None,
     ) -> None:
         """`stereo_placement`: where the pair stands (twin.sim.cameras.PLACEMENTS; None: the scene's
-        default, DEFAULT_PLACEMENT). `stereo_render_native`: render the cameras at 640x480 and
+        default, DEFAULT_PLACEMENT); a sequence puts one pair at each (`stereo_pairs`, the first of
+        which is `stereo`). `stereo_render_native`: render the cameras at 640x480 and
         area-average to 320x240 (as a camera read out and scaled) instead of at 320x240 directly.
         Off by default: on 2 cores it takes a run with cameras from ~1.3x to ~1.0x real time
         (BENCHMARKS.md), and the direct render reconstructs as accurately (block, 10 s: median 0.32
@@ -113,15 +114,23 @@ class SimBackend(Backend):
             else None
         )
         self.stereo: SimStereo | None = None
+        self.stereo_pairs: list[SimStereo] = []
+        """Every pair of the rig, `stereo` first (one per placement)."""
         if stereo:
-            from twin.sim.cameras import SimStereo
+            from twin.sim.cameras import SimStereo, pair_camera_names
 
-            self.stereo = SimStereo(
-                self.world,
-                stereo_config or StereoConfig(),
-                np.random.default_rng([seed, 2]),
-                render_native=stereo_render_native,
-            )
+            n_pairs = len(stereo_placement) if isinstance(stereo_placement, Sequence) else 1
+            self.stereo_pairs = [
+                SimStereo(
+                    self.world,
+                    stereo_config or StereoConfig(),
+                    np.random.default_rng([seed, 2] if pair == 0 else [seed, 2, pair]),
+                    render_native=stereo_render_native,
+                    cameras=pair_camera_names(pair),
+                )
+                for pair in range(n_pairs)
+            ]
+            self.stereo = self.stereo_pairs[0]
         self._scorer: SurfaceScorer | None = None
         self._clock = SimClock(self.world)
         m = self.world.model
@@ -130,6 +139,10 @@ class SimBackend(Backend):
         self._spread = m.joint("f1_spread").qposadr[0]
         self._outer_bodies = np.array([m.body(f"f{k}_outer").id for k in FINGERS])
         self._pyramidal = m.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+
+    def devices(self) -> list[Any]:
+        """The devices present, hand first, every stereo pair last."""
+        return [d for d in (self.hand, self.tactile) if d is not None] + list(self.stereo_pairs)
 
     @property
     def clock(self) -> Clock:
@@ -169,17 +182,17 @@ class SimBackend(Backend):
                 total = touches[idx].T.astype(float) @ world
         return np.linalg.norm(total, axis=1)
 
-    def object_box(self, rectifier: Rectifier, margin_px: int = 3) -> Box | None:
-        """The foam's bounding box in the rectified left view now: what a user would draw on the
-        first frame (None without foam or cameras)."""
+    def object_box(self, rectifier: Rectifier, margin_px: int = 3, *, pair: int = 0) -> Box | None:
+        """The foam's bounding box in the rectified left view of pair `pair` now: what a user would draw
+        on the first frame (None without foam or cameras)."""
         if self.foam is None or self.stereo is None:
             return None
-        from twin.sim.cameras import LEFT_CAMERA, camera_pose_cv
+        from twin.sim.cameras import camera_pose_cv
 
         m, d = self.world.model, self.world.data
         mujoco.mj_forward(m, d)  # vertex positions of a world not stepped yet; time does not move
         vertices = np.asarray(d.flexvert_xpos, dtype=float)
-        left_from_world = np.linalg.inv(camera_pose_cv(m, d, LEFT_CAMERA))
+        left_from_world = np.linalg.inv(camera_pose_cv(m, d, self.stereo_pairs[pair].cameras[0]))
         in_left = vertices @ left_from_world[:3, :3].T + left_from_world[:3, 3]
         rect = in_left @ rectifier.rectified_from_left.T
         uvw = np.column_stack([rect, np.ones(len(rect))]) @ rectifier.P1.T

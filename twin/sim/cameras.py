@@ -14,6 +14,7 @@ its -z with y up, an OpenCV camera along +z with y down, so cv_from_mujoco = dia
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -77,15 +78,25 @@ class CameraPlacement:
 PLACEMENTS: dict[str, CameraPlacement] = {
     "top": CameraPlacement("top", elevation_deg=90.0),
     "lateral": CameraPlacement("lateral", azimuth_deg=0.0, elevation_deg=30.0),
+    "opposite": CameraPlacement("opposite", azimuth_deg=180.0, elevation_deg=30.0),
 }
 """Named placements: `top` looks straight down on the palm-up hand (image up = the palm's +y, toward
 F3); `lateral` is the paper's view (§4, Fig. 1b): from the side where F1/F2 and F3 leave a gap, 30 deg
-above the palm plane, so the object shows beside the closing fingers."""
+above the palm plane, so the object shows beside the closing fingers; `opposite` is its mirror through
+the palm axis (the palm's -x side, the other gap), the second pair of a rig that sees two opposite faces."""
 DEFAULT_PLACEMENT = "lateral"
 """The scene's placement when none is given: the paper's. The study (BENCHMARKS.md, stereo_pipeline)
 puts every library foam within the reconstruction's targets from `lateral` against 2 of 5 from the
 top. The shape pipeline's contours (twin.vision.contour.to_view_plane) and height maps
 (twin.shape.surface) work in the pair's own view frame, from its calibration: any placement."""
+
+
+def pair_camera_names(pair: int = 0) -> tuple[str, str]:
+    """The MuJoCo names of pair `pair`'s left and right cameras: the first pair's are LEFT_CAMERA and
+    RIGHT_CAMERA (a one-pair rig as ever), a further pair's carry its index (`stereo1_left`, ...)."""
+    if pair == 0:
+        return LEFT_CAMERA, RIGHT_CAMERA
+    return f"stereo{pair}_left", f"stereo{pair}_right"
 
 
 def _up_hint(forward: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -107,9 +118,10 @@ def placement_axes(
 
 
 def stereo_camera_poses(
-    placement: CameraPlacement | None = None,
+    placement: CameraPlacement | None = None, names: tuple[str, str] = (LEFT_CAMERA, RIGHT_CAMERA)
 ) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """Position and MuJoCo xyaxes of each camera of `placement` (default: DEFAULT_PLACEMENT)."""
+    """Position and MuJoCo xyaxes of each camera of `placement` (default: DEFAULT_PLACEMENT), by
+    `names` (left, right)."""
     p = placement or PLACEMENTS[DEFAULT_PLACEMENT]
     target = np.asarray(p.target_m, dtype=float)
     half = math.radians(p.vergence_deg) / 2.0
@@ -119,7 +131,7 @@ def stereo_camera_poses(
     up_hint = _up_hint(-out)
     mid = target + mid_distance * out
     poses = {}
-    for name, side in ((LEFT_CAMERA, -1.0), (RIGHT_CAMERA, 1.0)):
+    for name, side in ((names[0], -1.0), (names[1], 1.0)):
         pos = mid + side * 0.5 * p.baseline_m * right
         forward = (target - pos) / distance
         x_axis = np.cross(forward, up_hint)  # image right
@@ -133,13 +145,17 @@ def add_stereo_cameras(
     root: mjcf.RootElement,
     config: StereoConfig | None = None,
     *,
-    placement: CameraPlacement | None = None,
+    placement: CameraPlacement | Sequence[CameraPlacement] | None = None,
     foam_texture: bool = True,
 ) -> None:
     """Add the Flea2 pair at `placement` to the world body, cheap offscreen rendering, and a porous
-    foam texture."""
+    foam texture. A sequence of placements adds one pair at each, named by pair_camera_names."""
     config = config or StereoConfig()
-    for name, (pos, xyaxes) in stereo_camera_poses(placement).items():
+    placements = placement if isinstance(placement, Sequence) else [placement]
+    poses: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+    for pair, where in enumerate(placements):
+        poses.update(stereo_camera_poses(where, pair_camera_names(pair)))
+    for name, (pos, xyaxes) in poses.items():
         root.worldbody.add(
             "camera", name=name, pos=pos.tolist(), xyaxes=xyaxes.tolist(), fovy=config.fovy_deg
         )
@@ -281,17 +297,20 @@ def ground_truth_calibration(
     config: StereoConfig | None = None,
     *,
     hand_body: str = HAND_BODY,
+    cameras: tuple[str, str] = (LEFT_CAMERA, RIGHT_CAMERA),
 ) -> StereoCalibration:
-    """The exact calibration of the simulated pair at the processed size (what a perfect rig would fit)."""
+    """The exact calibration of the simulated pair `cameras` (left, right) at the processed size (what a
+    perfect rig would fit)."""
     config = config or StereoConfig()
-    world_left = camera_pose_cv(model, data, LEFT_CAMERA)
-    world_right = camera_pose_cv(model, data, RIGHT_CAMERA)
+    left_camera, right_camera = cameras
+    world_left = camera_pose_cv(model, data, left_camera)
+    world_right = camera_pose_cv(model, data, right_camera)
     right_from_left = np.linalg.inv(world_right) @ world_left
     body = model.body(hand_body).id
     hand_from_left = np.linalg.inv(_pose(data.xpos[body], data.xmat[body])) @ world_left
     return StereoCalibration(
-        camera_intrinsics(model, LEFT_CAMERA, config.width, config.height),
-        camera_intrinsics(model, RIGHT_CAMERA, config.width, config.height),
+        camera_intrinsics(model, left_camera, config.width, config.height),
+        camera_intrinsics(model, right_camera, config.width, config.height),
         right_from_left[:3, :3],
         right_from_left[:3, 3],
         hand_from_left,
@@ -305,6 +324,7 @@ class SimStereo(StereoCamera):
     With `render_native` (default) both views are rendered at the native 640x480 and area-averaged to
     320x240 (anti-aliased like a scaled camera image); otherwise they are rendered at 320x240 directly
     (about 2x cheaper, with aliased edges). The declared noise is added to the delivered frame.
+    `cameras`: the pair's (left, right) camera names (pair_camera_names; default the first pair).
     """
 
     def __init__(
@@ -314,9 +334,11 @@ class SimStereo(StereoCamera):
         rng: np.random.Generator,
         *,
         render_native: bool = True,
+        cameras: tuple[str, str] = (LEFT_CAMERA, RIGHT_CAMERA),
     ) -> None:
         super().__init__()
         self.world = world
+        self.cameras = cameras
         self.config = config
         self.render_native = render_native
         self._spec = stereo_device_spec(config)
@@ -328,7 +350,7 @@ class SimStereo(StereoCamera):
         self._snapshots: list[mujoco.MjData] = []
         self._snapshot_jobs: list[Future | None] = []
         self._next_snapshot = 0
-        for name in (LEFT_CAMERA, RIGHT_CAMERA):
+        for name in cameras:
             world.model.camera(name)  # KeyError now rather than at connect() when the rig is missing
 
     @property
@@ -378,8 +400,8 @@ class SimStereo(StereoCamera):
             c = self.config
             w, h = (c.native_width, c.native_height) if self.render_native else (c.width, c.height)
             self._thread_renderer = renderer(self.world.model, height=h, width=w)
-        left = self._render_with(self._thread_renderer, data, LEFT_CAMERA)
-        right = self._render_with(self._thread_renderer, data, RIGHT_CAMERA)
+        left = self._render_with(self._thread_renderer, data, self.cameras[0])
+        right = self._render_with(self._thread_renderer, data, self.cameras[1])
         return StereoFrame(t_s=t_s, left=self._add_noise(left, k_left), right=self._add_noise(right, k_right))
 
     def _close_thread_renderer(self) -> None:
@@ -389,7 +411,7 @@ class SimStereo(StereoCamera):
 
     def calibration(self) -> StereoCalibration:
         """The ground-truth calibration of this pair now (the hand frame is the palm body)."""
-        return ground_truth_calibration(self.world.model, self.world.data, self.config)
+        return ground_truth_calibration(self.world.model, self.world.data, self.config, cameras=self.cameras)
 
     def render(self, camera: str) -> NDArray[np.uint8]:
         """One noiseless view at the processed size, from the world's present state."""
@@ -438,5 +460,5 @@ class SimStereo(StereoCamera):
 
     def read(self) -> StereoFrame:
         """Both views of the same physics state (a hardware-triggered pair), noised, at sim time."""
-        left, right = self.render(LEFT_CAMERA), self.render(RIGHT_CAMERA)
+        left, right = self.render(self.cameras[0]), self.render(self.cameras[1])
         return StereoFrame(t_s=self.world.time_s, left=self._corrupt(left), right=self._corrupt(right))

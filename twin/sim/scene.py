@@ -25,7 +25,7 @@ def scene_mjcf(
 ) -> mjcf.RootElement:
     """The hand scene as an mjcf tree, with the foam resting on the palm if given, and the simulated
     Flea2 stereo pair (twin.sim.cameras) if `cameras`, at `camera_placement` (a
-    twin.sim.cameras.CameraPlacement; None: its default)."""
+    twin.sim.cameras.CameraPlacement, or a sequence of them for one pair each; None: its default)."""
     root = mjcf.from_path(str(SCENE_XML))
     if foam is not None:
         add_foam(root, foam)

@@ -21,6 +21,7 @@ from twin.sim.cameras import (
     SimStereo,
     add_stereo_cameras,
     ground_truth_calibration,
+    pair_camera_names,
     placement_axes,
     stereo_camera_poses,
 )
@@ -253,3 +254,22 @@ def test_the_top_placement_is_the_rig_looking_straight_down():
 def test_an_impossible_placement_is_a_one_line_error(kwargs, message):
     with pytest.raises(ValueError, match=rf"^camera placement 'bad': {message}"):
         CameraPlacement("bad", **kwargs)
+
+
+def test_a_rig_of_two_pairs_keeps_the_first_pairs_cameras_and_mirrors_the_second():
+    """Two placements: the first pair is the one-pair rig's (same names, same poses), the second stands
+    where its placement says (`opposite`: the lateral pair turned 180 deg about the palm axis)."""
+    root = scene_mjcf(None)
+    add_stereo_cameras(root, CONFIG, placement=[PLACEMENTS["lateral"], PLACEMENTS["opposite"]])
+    model = compile_scene(root)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert model.ncam == 4
+    one_pair = stereo_camera_poses(PLACEMENTS["lateral"])
+    second = pair_camera_names(1)
+    assert second != (LEFT_CAMERA, RIGHT_CAMERA)
+    half_turn = np.diag([-1.0, -1.0, 1.0])  # about the palm axis through the target (x = y = 0)
+    for first, other in zip((LEFT_CAMERA, RIGHT_CAMERA), second, strict=True):
+        pos = data.cam_xpos[model.camera(first).id]
+        np.testing.assert_allclose(pos, one_pair[first][0], atol=1e-9)
+        np.testing.assert_allclose(data.cam_xpos[model.camera(other).id], half_turn @ pos, atol=1e-9)

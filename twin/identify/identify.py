@@ -11,6 +11,8 @@ Steps (paper §3.1 and §6.2):
 4. the grip stiffness (summed gauge torques on summed drive counts) and the squeeze stiffness (the
    fingertips' secants summed), the statistic from which twin.sim.modulus infers E by running the
    run's procedure in the twin (`twin identify` joins the two; this module reads recordings only).
+Samples where a finger sat at the safety layer's force cap are censored from steps 3 and 4
+(uncapped_window): the cap, not the object, shaped them.
 """
 
 from __future__ import annotations
@@ -184,15 +186,17 @@ def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: in
         return float(d @ (torque[idx] - torque[idx].mean()) / (d @ d)) if d @ d > 0 else float("nan")
 
     per_cycle = np.array([slope(i) for i in _cycles(window, cycles)])
-    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    n = len(per_cycle)
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
     return slope(np.flatnonzero(window)), sigma
 
 
 def _cycles(window: NDArray[np.bool_], cycles: int) -> list[NDArray[np.int64]]:
-    """The window's sample indices, cycle by cycle (a censored window: split over its whole span)."""
+    """The window's sample indices, cycle by cycle (a censored window: split over its whole span; a
+    cycle with fewer than 3 uncensored samples has no slope of its own and is left out)."""
     first, last = np.flatnonzero(window)[[0, -1]]
     span = np.arange(first, last + 1)
-    return [i[window[i]] for i in np.array_split(span, cycles)]
+    return [kept for i in np.array_split(span, cycles) if len(kept := i[window[i]]) >= 3]
 
 
 def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
@@ -267,7 +271,8 @@ def identify_run(
         per_cycle = _cycles(window, cycles)
         secants = np.array([signals.reaction_n[i, k].mean() / delta[i].mean() for i in per_cycle])
         secant = float(r_tac.mean() / delta[window].mean())
-        sigma = float(secants.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+        n = len(secants)
+        sigma = float(secants.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
         fingers.append(
             FingerResult(
                 finger=k + 1,
@@ -337,7 +342,8 @@ def squeeze_stiffness(signals: FingerSignals, max_cycles: int | None = None) -> 
             "through the compression: no squeeze stiffness"
         )
     per_cycle = np.array([slope(i) for i in _cycles(window, cycles)])
-    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    n = len(per_cycle)
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
     return total, sigma, cycles
 
 

@@ -247,9 +247,10 @@ class CompressController:
         p = self.profile
         self._stiffness_nm = stiffness.copy()
         self._grasp_torque_nm = torque.copy()
-        if not p.envelope:
+        peak = p.offset_counts + p.amplitude_counts
+        if not p.envelope or peak <= 0:  # a wave that never closes past the grasp needs no scale
             return
-        rise = stiffness * (p.offset_counts + p.amplitude_counts)
+        rise = stiffness * peak
         with np.errstate(invalid="ignore", divide="ignore"):
             share = np.where(np.isfinite(rise) & (rise > 0), (self.ceiling_nm - torque) / rise, 1.0)
         k = int(np.argmin(share))

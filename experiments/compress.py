@@ -2,10 +2,24 @@
 
 Backend-agnostic: it sees only hand readings (counts, strain) and sends position set points, so the
 same code drives the twin and the real hand. The compression follows the eq. 7 family
-m_k(t) = p_k + offset + amplitude * sin(omega * t + phase), in encoder counts, where p_k is finger
-k's balanced grasp position. The paper's printed constants (10 + 40 sin(3000 t) at 18 samples/s)
-alias, so the defaults below are chosen to compress the foam a few millimetres at a rate the 30 Hz
-loop resolves (60 samples per period).
+m_k(t) = p_k + s (offset + amplitude * sin(omega * t + phase)), in encoder counts, where p_k is
+finger k's balanced grasp position. The paper's printed constants (10 + 40 sin(3000 t) at 18
+samples/s) alias, so the defaults below are chosen to compress the foam a few millimetres at a rate
+the 30 Hz loop resolves (60 samples per period).
+
+The squeeze stays inside the hand's envelope (`envelope`): s in [0, 1] scales the wave, the same on
+every finger as in eq. 7, so that no finger's distal torque comes within `cap_margin` of the torque at
+which eq. 3 reads the 2 kg fingertip cap, where the safety layer would stop the finger closing and
+notch the curves. s is chosen when the compression starts, from the stiffness each finger showed in
+the balance (peak torque = grasp torque + stiffness x peak travel), and cut during the compression
+where a finger's torque still reaches that ceiling: the balance's stiffness is read while fingers
+open and close about their grasp, sometimes in another clutch state, and a finger may meet something
+stiffer than the object on the way (the thumb's distal link reaches its joint stop on the default
+block; docs/identification.md). After a cut the wave takes that finger only as far as it had
+travelled at its last reading under the ceiling. One scale for the hand, not one per finger: scaling
+only the finger at the ceiling moved its share of the squeeze with the object's placement, which the
+modulus compares (docs/identification.md). run.json's `squeeze_amplitude` states the amplitude and
+why.
 """
 
 from __future__ import annotations
@@ -42,6 +56,8 @@ measured (7e-5 N*m per count) at a 0.7 s time constant."""
 BALANCE_MEMORY_S = 1.0
 """How long a balance reading weighs in the finger's stiffness: the touch's overshoot (the torque
 relaxing while the finger still closes) is forgotten within the balance's first second."""
+CAP_TORQUE_NM = float(units.strain_to_torque_nm(units.force_kg_to_strain(units.FINGERTIP_FORCE_LIMIT_KG)))
+"""Distal torque (eq. 2) at the gauge reading where eq. 3 gives the 2 kg fingertip cap: 0.976 N*m."""
 REACQUIRE_LEAD_COUNTS = 150.0
 """How far a re-closing finger's set point may lead its position: one 30 Hz cycle of the re-close
 (100 counts) and some, so the twin re-closes unhindered and a late hand is not wound up."""
@@ -88,6 +104,14 @@ class CompressProfile:
     frequency_hz: float = 0.5
     phase_rad: float = -math.pi / 2
     """With offset = amplitude and phase -pi/2 the profile starts at the balanced grasp."""
+    envelope: bool = True
+    """Scale each finger's wave to keep it inside the hand's envelope (module docstring); False: the
+    bare eq. 7 wave on every finger (runs recorded before the rule, re-simulated as they ran)."""
+    cap_margin: float = 0.25
+    """Fraction of the cap's torque kept free (a ceiling of 0.73 N*m). A finger is cut at its first
+    reading over the ceiling, so the margin must hold a reading's rise: up to 0.22 N*m between two
+    30 Hz readings in the library foams' default squeezes (F1 on the firm block). The highest reading of
+    any of those runs' compressions is 0.77 N*m, 0.2 under the cap (docs/identification.md)."""
     close_timeout_s: float = 6.0
     spread_counts: float = 0.0
     """Spread 0: F1 and F2 side by side oppose the thumb F3, as in the paper's Fig. 3b."""
@@ -99,6 +123,8 @@ class CompressProfile:
                 raise ConfigError(f"compress: {name} must be > 0")
         if self.contact_samples < 1:
             raise ConfigError("compress: contact_samples must be >= 1")
+        if not 0 <= self.cap_margin < 1:
+            raise ConfigError("compress: cap_margin must be in [0, 1)")
         if self.amplitude_counts < 0 or self.frequency_hz <= 0 or self.balance_s < 0:
             raise ConfigError("compress: amplitude >= 0, frequency > 0 and balance_s >= 0 required")
         if self.balance_timeout_s < self.balance_s:
@@ -127,6 +153,13 @@ class CompressController:
     """Sums n, p, tau, p^2, p*tau, tau^2 of each finger's balance readings: its stiffness by least
     squares."""
     grasp_counts: np.ndarray | None = None
+    scale: float = 1.0
+    """The share of the profile's wave the fingers follow (the envelope rule, module docstring)."""
+    _stiffness_nm: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
+    _grasp_torque_nm: np.ndarray | None = None
+    _below_counts: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Each finger's travel past its grasp set point at its latest reading under the ceiling."""
+    _why: str = "the profile's amplitude: no finger's torque predicted or found at the ceiling"
 
     def __call__(self, reading: HandReading) -> HandCommand:
         """Next set points from the latest reading."""
@@ -144,7 +177,7 @@ class CompressController:
         elif self.phase == "balance":
             target = self._balance(reading.t_s, position, torque, load, dt)
         else:
-            target = self._compress(reading.t_s)
+            target = self._compress(reading.t_s, position, torque)
         return HandCommand(
             np.append(target, p.spread_counts),
             max_velocity_counts_s=p.close_velocity_counts_s,
@@ -182,6 +215,7 @@ class CompressController:
         settled = not lost.any() and bool(np.all(np.abs(error) <= p.balance_tolerance_nm))
         if (elapsed >= p.balance_s and settled) or elapsed >= p.balance_timeout_s:
             self.grasp_counts = self._hold_counts.copy()
+            self._choose_scale(stiffness, torque)
             self._enter("compress", t_s)
         return self._hold_counts
 
@@ -202,11 +236,80 @@ class CompressController:
         measured = (var_p >= (BALANCE_SPAN_COUNTS / 4) ** 2) & (slope > 0) & (t2 >= BALANCE_MIN_T**2)
         return np.where(measured, np.maximum(slope, 1e-12), np.inf)
 
-    def _compress(self, t_s: float) -> np.ndarray:
+    @property
+    def ceiling_nm(self) -> float:
+        """The distal torque no finger's squeeze should pass: `cap_margin` below the cap's."""
+        return (1.0 - self.profile.cap_margin) * CAP_TORQUE_NM
+
+    def _choose_scale(self, stiffness: np.ndarray, torque: np.ndarray) -> None:
+        """The wave scaled so every finger's predicted peak torque (now + stiffness x peak travel) stays
+        under the ceiling; a finger whose stiffness was not read sets no bound (watched on line)."""
         p = self.profile
+        self._stiffness_nm = stiffness.copy()
+        self._grasp_torque_nm = torque.copy()
+        peak = p.offset_counts + p.amplitude_counts
+        if not p.envelope or peak <= 0:  # a wave that never closes past the grasp needs no scale
+            return
+        rise = stiffness * peak
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(np.isfinite(rise) & (rise > 0), (self.ceiling_nm - torque) / rise, 1.0)
+        k = int(np.argmin(share))
+        if share[k] < 1:
+            self.scale = float(max(share[k], 0.0))
+            self._why = f"F{k + 1}'s peak torque predicted from its balance stiffness"
+
+    def _watch(self, t_s: float, position: np.ndarray, torque: np.ndarray) -> None:
+        """Cut the wave where a finger's torque crosses the ceiling (one reading: the gauge's noise is 50
+        times smaller than the margin): from then on it takes that finger only as far as at its last
+        reading under the ceiling."""
+        p = self.profile
+        below = torque <= self.ceiling_nm
+        self._below_counts = np.where(below, position - self.grasp_counts, self._below_counts)
+        peak = p.offset_counts + p.amplitude_counts
+        for k in np.flatnonzero(~below):
+            limit = max(float(self._below_counts[k]), 0.0) / peak if peak > 0 else 0.0
+            if limit < self.scale:
+                self.scale = limit
+                t = t_s - self._t_phase
+                self._why = f"cut {t:.2f} s into the compression, where F{k + 1}'s torque reached the ceiling"
+
+    def _compress(self, t_s: float, position: np.ndarray, torque: np.ndarray) -> np.ndarray:
+        p = self.profile
+        if p.envelope:
+            self._watch(t_s, position, torque)
         t = t_s - self._t_phase
         wave = p.offset_counts + p.amplitude_counts * math.sin(2 * math.pi * p.frequency_hz * t + p.phase_rad)
-        return np.clip(self.grasp_counts + wave, 0, units.FINGER_MAX_COUNTS)
+        return np.clip(self.grasp_counts + self.scale * wave, 0, units.FINGER_MAX_COUNTS)
+
+    def run_metadata(self) -> dict:
+        """run.json's `squeeze_amplitude`: the wave's amplitude and offset as the fingers followed it,
+        and why."""
+        p = self.profile
+        peak = p.offset_counts + p.amplitude_counts
+        grasp = self._grasp_torque_nm if self._grasp_torque_nm is not None else np.full(3, np.nan)
+        finite = np.isfinite(self._stiffness_nm)
+        return {
+            "rule": (
+                "the wave scaled so no finger's distal torque comes within cap_margin of the cap's: "
+                "predicted from the balance stiffness, cut where a finger's torque still reached that ceiling"
+                if p.envelope
+                else "off: the profile's wave"
+            ),
+            "amplitude_counts": self.scale * p.amplitude_counts,
+            "offset_counts": self.scale * p.offset_counts,
+            "scale": self.scale,
+            "why": self._why,
+            "cap_torque_nm": CAP_TORQUE_NM,
+            "ceiling_torque_nm": self.ceiling_nm,
+            "fingers": ["F1", "F2", "F3"],
+            "balance_stiffness_nm_per_kcount": [
+                float(k * 1e3) if f else None for k, f in zip(self._stiffness_nm, finite, strict=True)
+            ],
+            "predicted_peak_torque_nm": [
+                float(g + k * self.scale * peak) if f else None
+                for g, k, f in zip(grasp, self._stiffness_nm, finite, strict=True)
+            ],
+        }
 
     def _enter(self, phase: str, t_s: float) -> None:
         self.phase = phase

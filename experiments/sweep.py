@@ -110,10 +110,13 @@ class TrajectoryController(CompressController):
     """Close and balance as `compress`; then each finger follows its own wave from the grasp."""
 
     def __init__(self, trajectory: Trajectory) -> None:
-        super().__init__(CompressProfile())
+        super().__init__(CompressProfile(envelope=False))  # its own waves, not the compress wave's scaling
         self.trajectory = trajectory
 
-    def _compress(self, t_s: float) -> np.ndarray:
+    def _compress(
+        self, t_s: float, position: np.ndarray | None = None, torque: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Each finger's own wave, ramped in over RAMP_S (it needs no reading)."""
         tr = self.trajectory
         t = t_s - self._t_phase
         a, f, ph = (np.asarray(x) for x in (tr.amplitude_counts, tr.frequency_hz, tr.phase_rad))

@@ -208,12 +208,12 @@ def run_experiment(
                 writer.warn(line)
         except BaseException as exc:  # what went wrong is kept even when the run failed
             with interrupts_deferred():  # a second Ctrl-C waits until the status is on disk
-                error = _close_failed(writer, exc, rig, backend, result)
+                error = _close_failed(writer, exc, rig, backend, result, controller)
             if error is exc:
                 raise
             raise error from exc
         with interrupts_deferred():
-            writer.close("complete", metadata=_diagnostics(backend, rig, result))
+            writer.close("complete", metadata=_diagnostics(backend, rig, result, controller))
     except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
         if isinstance(exc, KeyboardInterrupt):
             exc.run_dir = run_dir  # the CLI says what the run directory now holds
@@ -256,10 +256,17 @@ def _source_names(message: str, copies: dict[str, Path], backend: Backend) -> st
     return message
 
 
-def _diagnostics(backend: Backend, rig: Rig | None, result: RigResult | None) -> dict[str, Any]:
+def _diagnostics(
+    backend: Backend, rig: Rig | None, result: RigResult | None, controller: object = None
+) -> dict[str, Any]:
     """What run.json keeps beside the status, whatever it is (written with it by writer.close, in one
-    rewrite): the backend's diagnostics, the reconstruction scores, and a finished run's final phase."""
+    rewrite): the backend's diagnostics, the reconstruction scores, the procedure's own account of its
+    squeeze (a controller's `run_metadata`, e.g. the compress amplitude it chose) and a finished run's
+    final phase."""
     items = dict(backend.diagnostics())
+    run_metadata = getattr(controller, "run_metadata", None)
+    if run_metadata is not None:
+        items["squeeze_amplitude"] = run_metadata()
     if rig is not None and rig.surface_scores:
         items["stereo_truth"] = summarize_surface_scores(rig.surface_scores)
     if rig is not None:  # the safety layer's cap shapes the curves where a finger sits at it
@@ -275,7 +282,12 @@ def _diagnostics(backend: Backend, rig: Rig | None, result: RigResult | None) ->
 
 
 def _close_failed(
-    writer: RunWriter, exc: BaseException, rig: Rig | None, backend: Backend, result: RigResult | None
+    writer: RunWriter,
+    exc: BaseException,
+    rig: Rig | None,
+    backend: Backend,
+    result: RigResult | None,
+    controller: object = None,
 ) -> BaseException:
     """Close the run as failed or interrupted with what was verified; the error to raise.
 
@@ -285,7 +297,7 @@ def _close_failed(
     stop = rig.stop if rig is not None else None
     message = stop.message() if stop is not None else (str(exc) or type(exc).__name__)
     try:
-        items = _diagnostics(backend, rig, result)
+        items = _diagnostics(backend, rig, result, controller)
     except Exception as failed:  # the run's own error is the one to report
         exc.add_note(f"(its diagnostics could not be kept: {failed})")
         items = {}

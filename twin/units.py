@@ -112,6 +112,11 @@ def strain_to_force_kg(strain_counts: ArrayLike) -> NDArray[np.float64]:
     return SG_FORCE_OFFSET_KG + SG_FORCE_SLOPE_KG * _as_float(strain_counts)
 
 
+def force_kg_to_strain(force_kg: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of eq. 3, not rounded or clipped."""
+    return (_as_float(force_kg) - SG_FORCE_OFFSET_KG) / SG_FORCE_SLOPE_KG
+
+
 NO_LOAD_STRAIN = float(torque_nm_to_strain(0.0))
 """Strain reading at zero torque under eq. 2 (137.35): what the sim's unloaded gauge reads."""
 

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 import pytest
-from twin.experiments.compress import CompressController, CompressProfile
+from twin.experiments.compress import CAP_TORQUE_NM, CompressController, CompressProfile
 
 from twin import units
 from twin.interface.devices import HandReading
@@ -62,6 +62,83 @@ def test_close_stops_each_finger_at_contact_then_balances_then_compresses():
                 2 * math.pi * profile.frequency_hz * (t - t0) + profile.phase_rad
             )
             assert target == pytest.approx(controller.grasp_counts + wave)
+
+
+RESOLUTION_NM = float(units.SG_TORQUE_SLOPE_NM)
+"""One strain count of eq. 2: the gauge's quantum."""
+
+
+def test_the_cap_torque_is_where_eq_3_reads_the_fingertip_force_cap():
+    strain = units.torque_nm_to_strain(CAP_TORQUE_NM)
+    assert units.strain_to_force_kg(strain) == pytest.approx(units.FINGERTIP_FORCE_LIMIT_KG)
+
+
+def test_a_stiff_grasp_squeezes_less_so_its_predicted_peak_stays_under_the_ceiling():
+    """Fingers of 3e-3 N*m per count would reach 0.2 + 1.2 N*m with the profile's 400 counts of travel,
+    over the 0.98 N*m cap. Their stiffness read in the balance predicts that: the wave is scaled to
+    (ceiling - grasp torque) / (stiffness x 400 counts), and the torques peak at the ceiling, not above."""
+    profile = CompressProfile()
+    controller, hand = CompressController(profile), ToyHand(stiffness_nm_per_count=3e-3)
+    log = drive(controller, hand, 12.0)
+    assert log[-1][1] == "compress"
+    peak = profile.offset_counts + profile.amplitude_counts
+    grasp_torque = hand.k * (controller.grasp_counts - hand.contact)
+    expected = (controller.ceiling_nm - grasp_torque) / (hand.k * peak)
+    # The balance reads the toy's slope from quantized torques: a few per cent, not the toy's exact k.
+    assert controller.scale == pytest.approx(expected.min(), rel=0.05)
+    assert controller.scale < 0.6
+    meta = controller.run_metadata()
+    assert "predicted from its balance stiffness" in meta["why"]
+    assert meta["amplitude_counts"] == pytest.approx(controller.scale * profile.amplitude_counts)
+    compress = [target for _, phase, target in log if phase == "compress"]
+    top = hand.k * (np.max(compress, axis=0) - hand.contact)
+    assert (top <= controller.ceiling_nm + RESOLUTION_NM).all(), top
+    assert top.max() >= controller.ceiling_nm - 0.05, top  # it still squeezes up to the ceiling
+
+
+class StopHand(ToyHand):
+    """A toy hand whose thumb (F3) meets a joint stop 150 counts past its grasp: 20 times stiffer beyond
+    it. F1 and F2 never reach theirs."""
+
+    def __init__(self, stop_past_grasp_counts: float = 150.0, stop_stiffness: float = 0.02):
+        super().__init__()
+        self.stop = self.contact + 0.2 / self.k + np.array([1e9, 1e9, stop_past_grasp_counts])
+        self.k_stop = stop_stiffness
+
+    def reading(self, t_s: float) -> HandReading:
+        torque = self.k * np.clip(self.position - self.contact, 0, None)
+        torque += self.k_stop * np.clip(self.position - self.stop, 0, None)
+        strain = np.round(units.torque_nm_to_strain(np.clip(torque, -1.1, 1.0))).astype(np.int32)
+        counts = np.append(np.round(self.position), 0).astype(np.int32)
+        return HandReading(t_s, counts, np.zeros(4, np.int32), strain)
+
+
+def test_a_thumb_that_meets_a_stop_cuts_the_wave_where_its_torque_reaches_the_ceiling():
+    """The balance reads the object's stiffness (1e-3 N*m per count: a 0.6 N*m peak predicted, under the
+    ceiling), but 150 counts into the squeeze the thumb meets a stop 20 times stiffer, as its distal link
+    meets its joint stop on the default block. The first rise crosses the ceiling; from then on the wave
+    takes the thumb only as far as its last reading under it, and no later cycle reaches it. F1 and F2
+    follow the same, smaller wave (eq. 7's one wave for the hand)."""
+    profile = CompressProfile()
+    controller, hand = CompressController(profile), StopHand()
+    dt, torques = 1 / 30.0, []
+    for k in range(int(14.0 * 30)):
+        reading = hand.reading(k * dt)
+        command = controller(reading)
+        hand.apply(command.position_counts, command.max_velocity_counts_s, dt)
+        if controller.phase == "compress":
+            torques.append((k * dt, units.strain_to_torque_nm(reading.strain_counts)))
+    t0 = torques[0][0]
+    later = np.array([tq for t, tq in torques if t - t0 > 1 / profile.frequency_hz])
+    assert later.max() <= controller.ceiling_nm + RESOLUTION_NM, later.max(axis=0)
+    assert 0.2 < controller.scale < 150 / 400 + 0.1, controller.scale
+    assert "F3's torque reached the ceiling" in controller.run_metadata()["why"]
+    # Without the rule the same thumb rides the stop to the gauge's top, past the cap.
+    bare, hand = CompressController(CompressProfile(envelope=False)), StopHand()
+    log = drive(bare, hand, 14.0)
+    assert bare.scale == 1
+    top = max(float(np.max(target[2] - hand.stop[2])) for _, phase, target in log if phase == "compress")
+    assert hand.k_stop * top > CAP_TORQUE_NM
 
 
 def test_a_touched_finger_holds_where_contact_was_confirmed_and_never_steps_back():
@@ -184,6 +261,8 @@ def test_nothing_to_grasp_times_out_into_balance():
         {"offset_counts": 3000, "amplitude_counts": 2000},
         {"balance_s": 3.0, "balance_timeout_s": 2.0},
         {"reacquire_velocity_counts_s": 0},
+        {"cap_margin": 1.0},
+        {"cap_margin": -0.1},
     ],
 )
 def test_bad_profiles_are_refused(kwargs):
@@ -212,3 +291,27 @@ def test_the_touch_breaks_every_clutch_away_whatever_the_noise_seed(tmp_path, si
         t_compress = command.t_s[np.argmax(np.asarray(command["phase"]) == PHASES.index("compress"))]
         broken = truth["broken_away"][truth.t_s >= t_compress]
         assert len(broken) > 30 and broken.all(), (seed, broken.mean(axis=0))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["block", "soft_block", "firm_block", "cylinder", "sphere"])
+def test_the_default_compress_of_every_library_foam_stays_under_the_force_cap(tmp_path, name):
+    """The README's default run (10 s, the fast preset) on each library foam: no finger's gauge reaches
+    the 2 kg cap in any reading (before the envelope rule the default block's thumb reached it 16
+    times, in every cycle), and run.json states the squeeze's amplitude and why."""
+    from twin.experiments.compress import run_compress
+
+    from twin.recording.reader import open_run
+    from twin.sim.backend import SimBackend
+    from twin.sim.foam import get_object
+
+    run_compress(SimBackend(get_object(name)), tmp_path / name, duration_s=10.0, object_name=name)
+    run = open_run(tmp_path / name)
+    assert run.metadata["final_phase"] == "compress"
+    assert run.metadata["force_cap"]["readings_at_cap"] == [0, 0, 0]
+    force_kg = run.stream("hand")["force_kg"][:, :3]
+    assert force_kg.max() < units.FINGERTIP_FORCE_LIMIT_KG
+    squeeze = run.metadata["squeeze_amplitude"]
+    profile = CompressProfile()
+    assert 0 < squeeze["amplitude_counts"] <= profile.amplitude_counts and squeeze["why"]
+    assert squeeze["ceiling_torque_nm"] == pytest.approx((1 - profile.cap_margin) * CAP_TORQUE_NM)

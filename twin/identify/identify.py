@@ -11,6 +11,8 @@ Steps (paper §3.1 and §6.2):
 4. the grip stiffness (summed gauge torques on summed drive counts) and the squeeze stiffness (the
    fingertips' secants summed), the statistic from which twin.sim.modulus infers E by running the
    run's procedure in the twin (`twin identify` joins the two; this module reads recordings only).
+Samples where a finger sat at the safety layer's force cap are censored from steps 3 and 4
+(uncapped_window): the cap, not the object, shaped them.
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ DEFAULT_PERIOD_S = 2.0
 """Cycle length when the run does not record its compression frequency (compress default 0.5 Hz)."""
 MAX_LOST_FRACTION = 0.1
 """A fingertip holding nothing in over 10 % of the compression has lost the object."""
+MAX_CAPPED_FRACTION = 0.5
+"""A compression with a finger at the force cap in over half its samples is refused: its uncapped
+samples are the cycles' troughs only, where the squeeze is not excited."""
 BASELINE_S = 0.3
 """Without a free-motion run, the gauge offset is the mean torque over the run's first 0.3 s (open hand)."""
 
@@ -91,6 +96,8 @@ class Identification:
     """The squeeze stiffness (N/m) over the run's whole cycles and its 1-sigma (squeeze_stiffness)."""
     material: dict | None = None
     """The modulus and its interval (twin.sim.modulus.ModulusEstimate.to_json), where one was inferred."""
+    censored: int = 0
+    """Compression samples left out of every fit because a finger sat at the force cap (uncapped_window)."""
 
     def to_json(self) -> dict:
         """The results file's content."""
@@ -104,6 +111,7 @@ class Identification:
             "squeeze_stiffness_n_m": self.squeeze[0],
             "squeeze_stiffness_sigma_n_m": self.squeeze[1],
             "material": self.material,
+            "censored_at_force_cap": self.censored,
             "notes": self.notes,
         }
 
@@ -135,6 +143,33 @@ def compression_window(
     return window, cycles
 
 
+def capped(signals: FingerSignals) -> NDArray[np.bool_]:
+    """(n, 3) samples where a finger sat at the force cap (none where the run cannot say)."""
+    if signals.at_cap is None:
+        return np.zeros((len(signals.t_s), 3), dtype=bool)
+    return signals.at_cap
+
+
+def uncapped_window(
+    signals: FingerSignals, max_cycles: int | None = None
+) -> tuple[NDArray[np.bool_], int, int]:
+    """The compression window (compression_window) less its samples with any finger at the force cap
+    (censored: the safety layer, not the object, shaped them), the cycles, and how many were censored.
+    IdentificationError, one line, where over MAX_CAPPED_FRACTION of the window was at the cap."""
+    window, cycles = compression_window(signals, max_cycles)
+    at_cap = capped(signals).any(axis=1) & window
+    censored = int(at_cap.sum())
+    if censored > MAX_CAPPED_FRACTION * window.sum():
+        which = np.flatnonzero((capped(signals) & window[:, None]).any(axis=0))
+        fingers = ", ".join(f"F{k + 1}" for k in which)
+        raise IdentificationError(
+            f"{signals.run_path}: a finger sat at the fingertip-force cap ({fingers}) in {censored} of "
+            f"{int(window.sum())} compression samples: too few uncapped samples to read the object from "
+            "(record it again with a smaller squeeze)"
+        )
+    return window & ~at_cap, cycles, censored
+
+
 def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: int) -> tuple[float, float]:
     """The whole grip's stiffness as the hand's own sensors see it: the slope of the summed distal
     torques (strain gauges, eq. 2) against the summed drive counts over whole cycles, in N*m per 1000
@@ -150,9 +185,18 @@ def grip_stiffness(signals: FingerSignals, window: NDArray[np.bool_], cycles: in
         d = drive[idx] - drive[idx].mean()
         return float(d @ (torque[idx] - torque[idx].mean()) / (d @ d)) if d @ d > 0 else float("nan")
 
-    per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
-    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    per_cycle = np.array([slope(i) for i in _cycles(window, cycles)])
+    n = len(per_cycle)
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
     return slope(np.flatnonzero(window)), sigma
+
+
+def _cycles(window: NDArray[np.bool_], cycles: int) -> list[NDArray[np.int64]]:
+    """The window's sample indices, cycle by cycle (a censored window: split over its whole span; a
+    cycle with fewer than 3 uncensored samples has no slope of its own and is left out)."""
+    first, last = np.flatnonzero(window)[[0, -1]]
+    span = np.arange(first, last + 1)
+    return [kept for i in np.array_split(span, cycles) if len(kept := i[window[i]]) >= 3]
 
 
 def contact_reference(signals: FingerSignals, finger: int) -> tuple[float, NDArray, NDArray]:
@@ -204,7 +248,14 @@ def identify_run(
             "no free-motion run (--free): eq. 4's hand terms are only the gauge's no-load offset; "
             "inertia, damping and gravity are left out of the torque cross-check"
         )
-    window, cycles = compression_window(signals)
+    window, cycles, censored = uncapped_window(signals)
+    if censored:
+        per_finger = (capped(signals) & compression_window(signals)[0][:, None]).sum(axis=0)
+        notes.append(
+            f"{censored} compression samples had a finger at the fingertip-force cap "
+            f"({', '.join(f'F{k + 1}: {n}' for k, n in enumerate(per_finger) if n)}): censored, "
+            "left out of every fit (the safety layer, not the object, shaped them)"
+        )
     hand_torque = hand.torque_nm(signals)
     fingers = []
     for k in range(3):
@@ -217,10 +268,11 @@ def identify_run(
         moment = signals.reaction_torque_nm[window, k]
         arm = float(moment.sum() / r_tac.sum()) if r_tac.sum() > 0 else float("nan")
         tau_ext = signals.torque_nm[window, k] - hand_torque[window, k]
-        per_cycle = np.array_split(np.flatnonzero(window), cycles)
+        per_cycle = _cycles(window, cycles)
         secants = np.array([signals.reaction_n[i, k].mean() / delta[i].mean() for i in per_cycle])
         secant = float(r_tac.mean() / delta[window].mean())
-        sigma = float(secants.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+        n = len(secants)
+        sigma = float(secants.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
         fingers.append(
             FingerResult(
                 finger=k + 1,
@@ -241,7 +293,7 @@ def identify_run(
         )
     grip = grip_stiffness(signals, window, cycles)
     squeeze = squeeze_stiffness(signals)
-    return Identification(signals.run_path, model, hand, fingers, notes, grip, squeeze[:2])
+    return Identification(signals.run_path, model, hand, fingers, notes, grip, squeeze[:2], censored=censored)
 
 
 def squeeze_stiffness(signals: FingerSignals, max_cycles: int | None = None) -> tuple[float, float, int]:
@@ -253,19 +305,22 @@ def squeeze_stiffness(signals: FingerSignals, max_cycles: int | None = None) -> 
     30 Hz samples (4 mm of fingertip travel at the close's speed), which moved single secants by 40 %.
     Sums, because the object shifts between the fingers as they squeeze: one fingertip may even back
     off while the others push, but the squeeze is the total (docs/identification.md). Fingertips that
-    never touch the object in the window are left out. IdentificationError when the pads held nothing
-    in over MAX_LOST_FRACTION of the compression: the object slipped out of the grasp."""
+    never touch the object in the window are left out, and so are samples with a finger at the force
+    cap (censored, uncapped_window). IdentificationError when the pads held nothing in over
+    MAX_LOST_FRACTION of the compression (the object slipped out of the grasp) or a finger sat at the
+    cap in over MAX_CAPPED_FRACTION of it."""
     if signals.reaction_n is None:
         raise IdentificationError(f"{signals.run_path}: no tactile reaction; the squeeze stiffness needs it")
-    window, cycles = compression_window(signals, max_cycles)
-    reaction = signals.reaction_n[window]
-    lost = float(np.mean(reaction.sum(axis=1) < CONTACT_FORCE_N))
+    full, _ = compression_window(signals, max_cycles)
+    lost = float(np.mean(signals.reaction_n[full].sum(axis=1) < CONTACT_FORCE_N))
     if lost > MAX_LOST_FRACTION:
         raise IdentificationError(
             f"{signals.run_path}: the fingertips held nothing (under {CONTACT_FORCE_N} N together) in "
             f"{100 * lost:.0f} % of the compression: the object slipped out of the grasp or was never held, "
             "so its stiffness cannot be read"
         )
+    window, cycles, _ = uncapped_window(signals, max_cycles)
+    reaction = signals.reaction_n[window]
     first = int(np.flatnonzero(window)[0])
     touching = (reaction > CONTACT_FORCE_N).any(axis=0)
     travel = np.column_stack(
@@ -286,16 +341,17 @@ def squeeze_stiffness(signals: FingerSignals, max_cycles: int | None = None) -> 
             f"{signals.run_path}: the fingertips' force did not rise as they pressed into the object "
             "through the compression: no squeeze stiffness"
         )
-    per_cycle = np.array([slope(i) for i in np.array_split(np.flatnonzero(window), cycles)])
-    sigma = float(per_cycle.std(ddof=1) / math.sqrt(cycles)) if cycles > 1 else float("nan")
+    per_cycle = np.array([slope(i) for i in _cycles(window, cycles)])
+    n = len(per_cycle)
+    sigma = float(per_cycle.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
     return total, sigma, cycles
 
 
 def fingertip_contact(signals: FingerSignals, max_cycles: int | None = None) -> NDArray[np.float64]:
-    """(3,) the fraction of the compared compression in which each fingertip pad touched the object:
-    which fingers hold it with their tips is the grasp's configuration, and a twin that grasps the
-    object otherwise is not measuring the same stiffness."""
-    window, _ = compression_window(signals, max_cycles)
+    """(3,) the fraction of the compared compression (its uncapped samples) in which each fingertip pad
+    touched the object: which fingers hold it with their tips is the grasp's configuration, and a twin
+    that grasps the object otherwise is not measuring the same stiffness."""
+    window, _, _ = uncapped_window(signals, max_cycles)
     return np.mean(signals.reaction_n[window] > CONTACT_FORCE_N, axis=0)
 
 
@@ -304,6 +360,6 @@ def fingertip_shares(signals: FingerSignals, max_cycles: int | None = None) -> N
     compression: how the grasp spreads the squeeze over the fingers. It moves with the object's
     placement and jumps where the grasp settles otherwise (a finger that barely holds), and S with it;
     the modulus compares only like grasps (twin.sim.modulus)."""
-    window, _ = compression_window(signals, max_cycles)
+    window, _, _ = uncapped_window(signals, max_cycles)
     mean = signals.reaction_n[window].mean(axis=0)
     return mean / mean.sum() if mean.sum() > 0 else np.full(3, math.nan)

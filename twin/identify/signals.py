@@ -48,6 +48,9 @@ class FingerSignals:
     """(n, 3, 3) fingertip pad centre in the hand frame."""
     tip_normal: NDArray[np.float64]
     """(n, 3, 3) fingertip pad outward normal in the hand frame."""
+    at_cap: NDArray[np.bool_] | None = None
+    """(n, 3) where each finger's fingertip force (eq. 3, from its gauge) sat at the safety layer's cap:
+    there the layer stopped it closing, so its curves are the cap's, not the object's (censored)."""
     phase: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     """(n,) index into `phases`; -1 where unknown."""
     phases: tuple[str, ...] = ()
@@ -132,11 +135,16 @@ def load_signals(path: Path | str, *, need_tactile: bool = True) -> FingerSignal
             idx = np.clip(np.searchsorted(cmd.t_s, t, side="right") - 1, 0, len(cmd) - 1)
             phase = cmd["phase"].astype(np.int64)[idx]
 
+    cap = run.metadata.get("force_cap")
+    limit_kg = cap.get("limit_kg") if isinstance(cap, dict) else None
+    if not isinstance(limit_kg, int | float) or isinstance(limit_kg, bool) or not limit_kg > 0:
+        limit_kg = units.FINGERTIP_FORCE_LIMIT_KG  # runs recorded before the cap was kept in run.json
     signals = FingerSignals(
         run_path=run.path,
         t_s=t,
         drive_counts=counts[:, :3],
         torque_nm=torque,
+        at_cap=units.strain_to_force_kg(strain[:, :3]) >= limit_kg,
         outer_rad=outer,
         link_abs_rad=inner + outer,
         tip_position_m=tip_p,

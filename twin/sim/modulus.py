@@ -489,8 +489,8 @@ def _profile(run: Run) -> CompressProfile:
     given = experiment.get("profile")
     if experiment.get("name") != "compress" or not isinstance(given, dict):
         raise EstimateError(f"{run.path}: not a `twin run compress` run; the modulus comes from one")
-    try:
-        return CompressProfile(**given)
+    try:  # a run recorded before the envelope rule squeezed with the bare wave: re-simulated so
+        return CompressProfile(**({"envelope": False} | given))
     except (TypeError, ConfigError) as exc:
         raise EstimateError(f"{run.path}: the run's compress profile is unreadable ({exc})") from None
 

@@ -115,3 +115,17 @@ def test_two_opposite_pairs_see_the_poisson_ratio_in_the_grasp():
         assert eps_x > 0 > eps_z
         ratios.append(seen.ratio())
     assert ratios[1] - ratios[0] > 0.1
+
+
+@pytest.mark.slow
+def test_the_bare_replay_is_the_runs_own_physics_step_for_step():
+    """run_overhead's denominator: the run's mj_step calls again with its controls and clutch switches
+    end exactly where the run ended (MuJoCo is deterministic), step for step; the row carries the
+    replay's and the CLI run's times for the ratios (their values are the benchmark's, not asserted)."""
+    from benchmarks import run_overhead
+
+    row = run_overhead.measure("block", 1.0)
+    assert row["steps"] >= 500 and row["replay_max_qpos_error"] == 0.0  # 1 s of 2 ms steps, and after
+    assert row["replay_s"] > 0 and row["cli_s"] > 0
+    table = run_overhead.to_markdown({"duration_s": 1.0, "rows": [row], "load": 1.0, "cores": 2})
+    assert "| run / replay |" in table.replace("**", "") and "largest joint difference" in table

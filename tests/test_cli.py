@@ -57,6 +57,12 @@ def test_run_compress_end_to_end_then_info_and_rrd(tmp_path: Path):
     assert meta["object"]["young_pa"] == 20e3 and meta["seed"] == 4
     assert meta["calibration"]["strain_torque_eq2"]["slope_nm"] == 0.0085
     assert "--young" in meta["command_line"]
+    # the squeeze the procedure chose and the readings at the force cap, as run.json has them
+    text = " ".join(twin("info", str(out)).stdout.split())  # rich wraps at the terminal's width
+    amplitude = meta["squeeze_amplitude"]["amplitude_counts"]
+    assert f"squeeze: {amplitude:.0f} counts" in text
+    counts = ", ".join(f"F{k + 1} {n}" for k, n in enumerate(meta["force_cap"]["readings_at_cap"]))
+    assert f"readings at the 2 kg fingertip-force cap: {counts}" in text
     # The .rrd reads back with Rerun's own API: the plotted positions are the recorded ones.
     from twin.viz.rerun_log import read_rrd_entities, read_rrd_scalars
 

@@ -72,6 +72,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         console.print(f"  object: {escape(_object_summary(meta['object']))}")
     if isinstance(meta.get("foam_calibration"), dict):
         console.print(f"  foam calibration: {escape(_calibration_summary(meta['foam_calibration']))}")
+    for line in _envelope_lines(meta):
+        console.print(f"  {escape(line)}")
     if meta.get("stereo_truth"):
         try:
             truth = surface_summary(meta["stereo_truth"])
@@ -106,6 +108,29 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"{d['recorded']}{never_closed}"
         )
     return 0
+
+
+def _envelope_lines(meta: dict) -> list[str]:
+    """The squeeze the compress procedure chose (inside the fingertip-force cap) and how often a finger
+    still reached the cap, as run.json records them; nothing for what a run did not record (or a file
+    whose fields are not numbers: a hostile run.json prints less, never a traceback)."""
+    lines = []
+    squeeze, cap = meta.get("squeeze_amplitude"), meta.get("force_cap")
+    if isinstance(squeeze, dict) and isinstance(squeeze.get("amplitude_counts"), int | float):
+        line = f"squeeze: {squeeze['amplitude_counts']:.0f} counts"
+        if isinstance(squeeze.get("scale"), int | float):
+            line += f" (x {squeeze['scale']:.2f} of the profile's wave)"
+        if isinstance(squeeze.get("why"), str):
+            line += f"; {squeeze['why']}"
+        lines.append(line)
+    if isinstance(cap, dict) and isinstance(cap.get("readings_at_cap"), list):
+        counts, names = cap["readings_at_cap"], cap.get("fingers") or ["F1", "F2", "F3"]
+        if all(isinstance(c, int) for c in counts) and len(counts) == len(names):
+            limit = cap.get("limit_kg")
+            at = f"{limit:g} kg " if isinstance(limit, int | float) else ""
+            lines.append(f"readings at the {at}fingertip-force cap: " + ", ".join(
+                f"{n} {c}" for n, c in zip(names, counts, strict=True)))  # fmt: skip
+    return lines
 
 
 def _calibration_summary(cal: dict) -> str:

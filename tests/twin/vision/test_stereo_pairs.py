@@ -13,6 +13,7 @@ import pytest
 from twin.recording import open_run
 from twin.vision.fusion import VISION
 from twin.vision.pipeline import decode_jpeg
+from twin.vision.strain_record import observe_run, opposite_pair_streams
 
 pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
 
@@ -53,9 +54,13 @@ def test_two_opposite_pairs_are_both_recorded_each_seeing_its_own_face(tmp_path:
         assert len(plus) > 100 and len(minus) > 100
         assert np.percentile(plus[:, 0], 90) == pytest.approx(0.03, abs=0.004)
         assert np.percentile(minus[:, 0], 10) == pytest.approx(-0.03, abs=0.004)
+    # The strain reader finds the two opposite pairs by their calibration; a 1 s run has no squeeze yet.
+    assert opposite_pair_streams(two) == ("stereo", "stereo_opposite")
+    with pytest.raises(ValueError, match="never reached the squeeze"):
+        observe_run(two, 0.07, 0.075)
     # The first pair records what a one-pair run of the same seed records: the second changes nothing.
     one = open_run(compress(tmp_path / "one"))
-    assert "stereo_opposite" not in one.streams
+    assert "stereo_opposite" not in one.streams and opposite_pair_streams(one) is None
     for field in ("left_jpeg", "points_m", "triangles"):
         for a, b in zip(one.stream("stereo")[field], first[field], strict=True):
             np.testing.assert_array_equal(a, b)

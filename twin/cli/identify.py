@@ -196,7 +196,7 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
         return unmeasured
     from twin.sim.fit import foam_of_run
     from twin.sim.modulus import describe
-    from twin.sim.poisson import read_run
+    from twin.sim.poisson import drawn_poisson_range, read_run
 
     if not args.no_progress:
         print("reading the Poisson ratio from the two stereo pairs (12 simulations)...", file=sys.stderr)
@@ -207,13 +207,9 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
             f"the two stereo pairs could not read the Poisson ratio ({exc}): the tolerated range is drawn"
         )
         return unmeasured
-    low, high = max(tolerated[0], read.poisson_95[0]), min(tolerated[1], read.poisson_95[1])
-    if low > high:
-        notes.append(
-            f"the cameras' nu {read.poisson_95[0]:.3f}-{read.poisson_95[1]:.3f} lies outside the tolerated "
-            f"{tolerated[0]:g}-{tolerated[1]:g}: the tolerated range is drawn"
-        )
-        low, high = tolerated
+    (low, high), note = drawn_poisson_range(tolerated, read.poisson_95)
+    if note:
+        notes.append(note)
     args.tolerances = replace(args.tolerances, poisson=(low, high))
     return read.to_json() | {"drawn_range": [low, high]}
 

@@ -219,3 +219,18 @@ def read_run(run_dir: Path | str, foam: FoamParams, seed: int = SEED) -> Poisson
         run.strains(),
         len(coarse) + len(young),
     )
+
+
+def drawn_poisson_range(
+    tolerated: tuple[float, float], measured_95: tuple[float, float]
+) -> tuple[tuple[float, float], str | None]:
+    """The Poisson ratios the modulus simulations draw once the cameras measured nu: the tolerated range
+    cut to the measurement's 95 % interval; where the two do not overlap, the tolerated range, and a
+    note saying so."""
+    low, high = max(tolerated[0], measured_95[0]), min(tolerated[1], measured_95[1])
+    if low <= high:
+        return (low, high), None
+    return tolerated, (
+        f"the cameras' nu {measured_95[0]:.3f}-{measured_95[1]:.3f} lies outside the tolerated "
+        f"{tolerated[0]:g}-{tolerated[1]:g}: the tolerated range is drawn"
+    )

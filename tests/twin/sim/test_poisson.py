@@ -43,3 +43,10 @@ def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(tmp_pa
     assert low < 0.3 < high and high - low < 0.12, read
     assert read.placement_m[0] == pytest.approx(0.001, abs=5e-4), read
     assert read.young_95_pa[0] < read.young_pa < read.young_95_pa[1] and read.simulations == 12
+
+
+def test_the_cameras_interval_narrows_the_tolerated_poisson_range():
+    assert poisson.drawn_poisson_range((0.2, 0.35), (0.26, 0.31)) == ((0.26, 0.31), None)
+    assert poisson.drawn_poisson_range((0.2, 0.35), (0.3, 0.4)) == ((0.3, 0.35), None)
+    drawn, note = poisson.drawn_poisson_range((0.2, 0.35), (0.38, 0.45))
+    assert drawn == (0.2, 0.35) and "outside the tolerated 0.2-0.35" in note

@@ -173,8 +173,8 @@ class PoissonRead:
         return {
             "poisson": self.poisson,
             "poisson_ci95": list(self.poisson_95),
-            "young_pa": self.young_pa,
-            "young_ci95_pa": list(self.young_95_pa),
+            "young_from_strains_pa": self.young_pa,  # not the identification's E (the squeeze's)
+            "young_from_strains_ci95_pa": list(self.young_95_pa),
             "placement_m": list(self.placement_m),
             "strains": {"eps_x": self.strains[0], "eps_z": self.strains[1]},
             "simulations": self.simulations,

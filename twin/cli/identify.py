@@ -171,7 +171,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 CAMERAS_WOULD_ADD = (
     "two opposite stereo pairs (`twin run compress --cameras --camera-placement lateral,opposite`) would "
-    "measure it: +-0.04 (95 %) on held-out runs of the fast block and cylinder (BENCHMARKS.md)"
+    "measure it: +-0.04-0.05 (95 %) on held-out runs of the fast block and cylinder (BENCHMARKS.md)"
 )
 
 

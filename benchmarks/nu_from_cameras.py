@@ -5,7 +5,9 @@ log-uniform, placement uniform within +-3 mm in x and y) are watched by the pape
 its mirror `opposite` (twin.sim.cameras PLACEMENTS), both through the project's StereoPipeline. At rest
 and at each trough of the squeeze (the balanced grasp), the object's width along the palm's x is the
 distance between the two x faces (twin.vision.lateral_strain: a rigid shift cancels) and its top is the
-height of the downward-facing taxels (the distal links lie on it). Their strains' ratio
+height of the downward-facing taxels (the distal links lie on it); the clouds are the fused cloud's
+vision points a run records, read by the code `twin identify` reads a run with (twin.sim.poisson,
+twin.vision.strain_record). Their strains' ratio
 -eps_x/eps_z is read as nu through the twin: the same procedure, cameras and code on the described
 object at the run's modulus (given, see below) and at its placement measured from the rest frames, at
 nu = 0.2, 0.275, 0.35; the line through the three is inverted at the run's ratio. The one-pair
@@ -20,161 +22,25 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, field, replace
 
 import numpy as np
-from twin.experiments.compress import PHASES, CompressController, CompressProfile
 
-from twin.rig import Rig
-from twin.sim.backend import SimBackend
-from twin.sim.cameras import PLACEMENTS
 from twin.sim.foam import LIBRARY, FoamParams
 from twin.sim.modulus import POISSON_RANGE
-from twin.sim.scene import PALM_SURFACE_Z_M
+from twin.sim.poisson import JOINT_E_PA, SIM_POISSON, observe, placement_m, read_joint, twin_foam
 from twin.vision import lateral_strain as ls
-from twin.vision.pipeline import StereoPipeline
-from twin.vision.reconstruct import Rectifier
+from twin.vision.strain_record import StrainObservation
 
-PAIRS = ("lateral", "opposite")
-"""The rig: the paper's pair and its mirror through the palm axis (the two gaps along the palm's x)."""
-SIM_POISSON = (0.2, 0.275, 0.35)
-"""The twin's Poisson ratios the run's ratio is read against: POISSON_RANGE's ends and middle."""
-TROUGHS = 2
-"""Troughs of the squeeze read (the balanced grasp recurs every period): the compress phase's start and
-the next one, where the run lasts that long."""
-DURATION_S = 8.0
-"""Sim time of a run: the grasp is balanced by 2.6-4.5 s on the fast block, a trough follows 2 s later."""
 SEED_HELD_OUT, SEED_TWIN = 38_000, 38_500
 """Fresh seeds (the statistic was shaped on seeds 1 and 101-112)."""
 
 
-@dataclass
-class Observation:
-    """What the two pairs and the hand saw of one run: widths and tops at rest and at the troughs."""
-
-    width0_m: float
-    height0_m: float
-    width_m: list[float] = field(default_factory=list)
-    top_m: list[float] = field(default_factory=list)
-    face0_m: float = math.nan
-    face_m: list[float] = field(default_factory=list)
-    """The `lateral` pair's own face (the one-pair statistic)."""
-    centre_x_m: float = math.nan
-    centre_y_reading_m: float = math.nan
-
-    def ratio(self) -> float:
-        """-eps_x/eps_z over the troughs seen (their mean)."""
-        return float(
-            np.mean(
-                [
-                    ls.strain_ratio(self.width0_m, w, self.height0_m, t - PALM_SURFACE_Z_M)
-                    for w, t in zip(self.width_m, self.top_m, strict=True)
-                ]
-            )
-        )
-
-    def strains(self) -> tuple[float, float]:
-        """(eps_x, eps_z) over the troughs seen (their mean)."""
-        eps_x = np.mean([w / self.width0_m - 1.0 for w in self.width_m])
-        eps_z = np.mean([(t - PALM_SURFACE_Z_M) / self.height0_m - 1.0 for t in self.top_m])
-        return float(eps_x), float(eps_z)
-
-    def one_face_ratio(self) -> float:
-        """The `lateral` face's outward shift over the axial strain (one pair)."""
-        return float(
-            np.mean(
-                [
-                    ls.strain_ratio(
-                        self.width0_m,
-                        self.width0_m + 2.0 * (f - self.face0_m),
-                        self.height0_m,
-                        t - PALM_SURFACE_Z_M,
-                    )
-                    for f, t in zip(self.face_m, self.top_m, strict=True)
-                ]
-            )
-        )
-
-
-def observe(foam: FoamParams, seed: int) -> Observation:
-    """Run the compress procedure with both pairs and read the statistic at rest and at the troughs."""
-    backend = SimBackend(foam, seed=seed, stereo=True, stereo_placement=[PLACEMENTS[n] for n in PAIRS])
-    backend.connect()
-    try:
-        pipes = []
-        for k, stereo in enumerate(backend.stereo_pairs):
-            cal = stereo.calibration()
-            pipes.append(StereoPipeline(cal, backend.object_box(Rectifier(cal), pair=k)))
-        controller = CompressController()
-        period_s = 1.0 / CompressProfile().frequency_hz
-        height_m = foam.size_m[2]
-        obs: list[Observation] = []
-        state = {"t_compress": None, "seen": set()}
-
-        def clouds() -> list[np.ndarray]:
-            out = []
-            for stereo, pipe in zip(backend.stereo_pairs, pipes, strict=True):
-                surface = pipe.process(stereo.read())
-                out.append(surface.reconstruction.points_hand)
-            return out
-
-        def watch(reading):  # a controller: the procedure's, with the cameras read at rest and the troughs
-            for pipe in pipes:
-                pipe.observe_hand(reading)
-            if not obs:
-                plus, minus = clouds()
-                o = Observation(ls.width_m(plus, minus, PALM_SURFACE_Z_M, height_m), height_m)
-                o.face0_m = ls.face_position_m(plus, 1.0, PALM_SURFACE_Z_M, height_m)
-                o.centre_x_m = ls.centre_x_m(plus, minus, PALM_SURFACE_Z_M, height_m)
-                o.centre_y_reading_m = ls.centre_y_reading_m(plus, minus)
-                obs.append(o)
-            command = controller(reading)
-            if controller.phase == "compress":
-                if state["t_compress"] is None:
-                    state["t_compress"] = reading.t_s
-                k = round((reading.t_s - state["t_compress"]) / period_s)
-                on_trough = abs(reading.t_s - state["t_compress"] - k * period_s) < 0.5 / 30.0
-                if on_trough and k < TROUGHS and k not in state["seen"]:
-                    state["seen"].add(k)
-                    plus, minus = clouds()
-                    taxels, normals = pipes[0].kinematics.taxels()
-                    o = obs[0]
-                    o.width_m.append(ls.width_m(plus, minus, PALM_SURFACE_Z_M, height_m))
-                    o.face_m.append(ls.face_position_m(plus, 1.0, PALM_SURFACE_Z_M, height_m))
-                    o.top_m.append(ls.top_height_m(taxels, normals))
-            return command
-
-        class Watcher:
-            @property
-            def phase(self) -> str:
-                return controller.phase
-
-            def __call__(self, reading):
-                return watch(reading)
-
-        Rig(backend, phases=PHASES).run(Watcher(), DURATION_S)
-        if not obs or not obs[0].width_m:
-            raise RuntimeError("the grasp never reached the squeeze")
-        return obs[0]
-    finally:
-        backend.disconnect()
-
-
-def _twin_foam(
-    foam: FoamParams, young_pa: float, poisson: float, placement_m: tuple[float, float]
-) -> FoamParams:
-    return replace(foam, young_pa=young_pa, poisson=poisson, placement_m=placement_m)
-
-
-def read_nu(run: Observation, foam: FoamParams, young_pa: float, seed: int) -> dict:
-    """nu from the run's ratio through the twin at `young_pa` and the placement the cameras measured:
-    the y reading's rig offset from one simulation at y = 0, then the three Poisson ratios there."""
-    x_m = run.centre_x_m
-    probe = observe(_twin_foam(foam, young_pa, SIM_POISSON[1], (x_m, 0.0)), seed)
-    y_m = run.centre_y_reading_m - probe.centre_y_reading_m
-    y_m = float(np.clip(y_m, -0.01, 0.01))
+def read_nu(run: StrainObservation, foam: FoamParams, young_pa: float, seed: int) -> dict:
+    """nu from the run's ratio through the twin at `young_pa` and the placement the cameras measured
+    (twin.sim.poisson.placement_m), at the three Poisson ratios there; the line inverted."""
+    x_m, y_m = placement_m(run, foam, young_pa, seed)
     sims = [
-        observe(_twin_foam(foam, young_pa, nu, (x_m, y_m)), seed + 1 + k) for k, nu in enumerate(SIM_POISSON)
+        observe(twin_foam(foam, young_pa, nu, (x_m, y_m)), seed + 1 + k) for k, nu in enumerate(SIM_POISSON)
     ]
     nus = np.array(SIM_POISSON)
     return {
@@ -187,28 +53,10 @@ def read_nu(run: Observation, foam: FoamParams, young_pa: float, seed: int) -> d
     }
 
 
-JOINT_E_PA = (28e3, 40e3, 57e3)
-"""The joint read's moduli: the drawn range's ends and its geometric middle."""
-
-
-def read_joint(run: Observation, foam: FoamParams, seed: int) -> dict:
-    """E and nu together from the two strains alone (no modulus given): the twin at the placement the
-    cameras measured over JOINT_E_PA x SIM_POISSON, the strains fitted by a quadratic in log E with a
-    linear nu and their product (twin.vision.lateral_strain.read_modulus_and_poisson), the run's
-    inverted."""
-    x_m = run.centre_x_m
-    probe = observe(_twin_foam(foam, JOINT_E_PA[1], SIM_POISSON[1], (x_m, 0.0)), seed)
-    y_m = float(np.clip(run.centre_y_reading_m - probe.centre_y_reading_m, -0.01, 0.01))
-    young, poisson, strains = [], [], []
-    for i, e_pa in enumerate(JOINT_E_PA):
-        for k, nu in enumerate(SIM_POISSON):
-            seen = observe(_twin_foam(foam, e_pa, nu, (x_m, y_m)), seed + 1 + 3 * i + k)
-            young.append(e_pa)
-            poisson.append(nu)
-            strains.append(seen.strains())
-    reading = ls.read_modulus_and_poisson(
-        run.strains(), np.array(young), np.array(poisson), np.array(strains)
-    )
+def _joint(run: StrainObservation, foam: FoamParams, seed: int) -> dict:
+    """E and nu together from the two strains alone (twin.sim.poisson.read_joint over JOINT_E_PA x
+    SIM_POISSON at the placement the cameras measured)."""
+    reading, _ = read_joint(run, foam, seed, JOINT_E_PA, SIM_POISSON)
     return {
         "joint_young_kpa": reading.young_pa / 1e3,
         "nu_joint": reading.poisson,
@@ -229,7 +77,7 @@ def _runs(name: str, n_runs: int, n_e_off: int, seed: int, t0: float) -> list[di
         nu = float(rng.uniform(*POISSON_RANGE))
         young_pa = float(math.exp(rng.uniform(math.log(28e3), math.log(57e3))))
         placement = tuple(float(v) for v in rng.uniform(-0.003, 0.003, size=2))
-        seen = observe(_twin_foam(base, young_pa, nu, placement), seed + i)
+        seen = observe(twin_foam(base, young_pa, nu, placement), seed + i)
         twin_seed = seed - SEED_HELD_OUT + SEED_TWIN + 10 * i
         row = {
             "object": name,
@@ -243,7 +91,7 @@ def _runs(name: str, n_runs: int, n_e_off: int, seed: int, t0: float) -> list[di
             factor = 1.15 if i % 2 == 0 else 1 / 1.15
             row["e_factor"] = factor
             row["nu_two_pairs_e_off"] = read_nu(seen, base, young_pa * factor, twin_seed + 5)["nu_two_pairs"]
-        row.update(read_joint(seen, base, twin_seed + 200))
+        row.update(_joint(seen, base, twin_seed + 200))
         rows.append(row)
         print(
             f"{name} {i}: nu {nu:.3f} E {young_pa / 1e3:.1f} kPa at {row['placement_mm'][0]:+.1f},"

@@ -122,8 +122,8 @@ class HardwareBackend(Backend):
         """Wall clock."""
         return self._clock
 
-    def object_box(self, rectifier: object) -> tuple[int, int, int, int] | None:
-        """rig.toml's [stereo].bbox (None: `--bbox` must give it)."""
+    def object_box(self, rectifier: object, *, pair: int = 0) -> tuple[int, int, int, int] | None:
+        """rig.toml's [stereo].bbox (None: `--bbox` must give it); the rig has one pair."""
         return self.config.stereo_bbox
 
     def safety_limits(self) -> SafetyLimits:

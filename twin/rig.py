@@ -13,7 +13,7 @@ import math
 import tempfile
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from twin import units
-from twin.interface.backend import Backend
+from twin.interface.backend import Backend, stereo_stream_name
 from twin.interface.devices import (
     FINGER_LABELS,
     N_TAXELS,
@@ -323,16 +323,31 @@ class Rig:
         phases: tuple[str, ...] = ("idle",),
         safety: SafetyLayer | None = None,
         tactile_calibration: TaxelCalibration | None = None,
-        stereo_pipeline: StereoPipeline | None = None,
+        stereo_pipeline: StereoPipeline | Sequence[StereoPipeline] | None = None,
         shape_model: ShapeModel | None = None,
     ) -> None:
+        """`stereo_pipeline`: the first pair's pipeline, or one per pair of the backend's
+        named_stereo_pairs (in order: each pair is sampled and recorded, stereo_stream_name)."""
         self.backend = backend
         self.shape_model = shape_model
         """Predicts the object's contour from every hand reading (paper §7); None: no prediction."""
-        if stereo_pipeline is not None and backend.stereo is None:
-            raise ValueError("a stereo pipeline needs a backend with a stereo camera")
-        self.stereo_pipeline = stereo_pipeline
-        """Processes every stereo pair (reconstruction + tactile fill-in); None: cameras not sampled."""
+        pipelines = [] if stereo_pipeline is None else [stereo_pipeline]
+        if isinstance(stereo_pipeline, Sequence):
+            pipelines = list(stereo_pipeline)
+        pairs = backend.named_stereo_pairs()
+        if len(pipelines) > len(pairs):
+            raise ValueError(f"{len(pipelines)} stereo pipelines for the backend's {len(pairs)} pair(s)")
+        self.stereo_pipelines: list[StereoPipeline] = pipelines
+        """One per sampled pair (reconstruction + tactile fill-in), the first pair's first; the backend's
+        further pairs without one are not sampled."""
+        self.stereo_pipeline = pipelines[0] if pipelines else None
+        """The first pair's (the `stereo` stream, its truth scores, contour and viewer); None: cameras not
+        sampled."""
+        self._stereo_streams = [
+            (stereo_stream_name(k, name), name, camera)
+            for k, ((name, camera), _) in enumerate(zip(pairs, pipelines, strict=False))
+        ]
+        """(stream, placement, camera) of each sampled pair."""
         if backend.tactile is not None and tactile_calibration is None:
             with tempfile.TemporaryDirectory() as tmp:  # the backend's files, read as any run reads them
                 tactile_calibration = load_calibration(backend.write_calibration(Path(tmp)))
@@ -393,7 +408,9 @@ class Rig:
         if stereo_pipeline is not None:
             from twin.vision.pipeline import stereo_stream_spec
 
-            specs.append(stereo_stream_spec(backend.stereo.spec.rate_hz))
+            several = len(self._stereo_streams) > 1
+            for stream, name, camera in self._stereo_streams:
+                specs.append(stereo_stream_spec(camera.spec.rate_hz, stream, name if several else None))
             if backend.ground_truth() is not None:
                 rate = backend.stereo.spec.rate_hz / STEREO_TRUTH_EVERY
                 specs.append(stereo_truth_stream_spec(rate))
@@ -425,6 +442,7 @@ class Rig:
             for k in range(n_tactile + 1):
                 self._push(k * tactile.spec.period_s, "sample_tactile")
         stereo = self.backend.stereo if self.stereo_pipeline is not None else None
+        stereo_pairs = [camera for _, _, camera in self._stereo_streams]
         if stereo is not None:
             n_stereo = math.floor(duration_s * stereo.spec.rate_hz + 1e-9)
             stereo_latency = stereo.spec.latency_s if self.backend.is_simulated else 0.0
@@ -467,15 +485,16 @@ class Rig:
                         self._push(max(scan.t_s + tactile_latency, event_t_s), "deliver_tactile", scan)
                 elif kind == "deliver_tactile":
                     self._deliver_tactile(payload)
-                elif kind == "sample_stereo":
-                    pending = stereo.read_async()  # the sim renders it while the physics runs on
-                    truth = (
-                        self.backend.surface_truth(self.stereo_pipeline.rectifier)
-                        if self._stereo_sampled % STEREO_TRUTH_EVERY == 0
-                        else None
-                    )
+                elif kind == "sample_stereo":  # every pair at once (hardware-triggered together)
+                    for pair, camera in enumerate(stereo_pairs):
+                        pending = camera.read_async()  # the sim renders it while the physics runs on
+                        truth = (  # the first pair's frames are scored against the truth
+                            self.backend.surface_truth(self.stereo_pipeline.rectifier)
+                            if pair == 0 and self._stereo_sampled % STEREO_TRUTH_EVERY == 0
+                            else None
+                        )
+                        self._push(event_t_s + stereo_latency, "deliver_stereo", (pair, pending, truth))
                     self._stereo_sampled += 1
-                    self._push(event_t_s + stereo_latency, "deliver_stereo", (pending, truth))
                 elif kind == "deliver_stereo":
                     self._deliver_stereo(payload)
                 elif kind == "scene":
@@ -608,8 +627,8 @@ class Rig:
             **physical,
         }
         self._record("hand", reading.t_s, row)
-        if self.stereo_pipeline is not None:
-            self.stereo_pipeline.observe_hand(reading)
+        for pipeline in self.stereo_pipelines:
+            pipeline.observe_hand(reading)
         if truth is not None:
             self._record("truth", reading.t_s, truth)
             log_truth = getattr(self.viewer, "log_truth", None)
@@ -675,35 +694,36 @@ class Rig:
                 "active_taxels": active_counts(pressure),
             },
         )
-        if self.stereo_pipeline is not None:
-            self.stereo_pipeline.observe_tactile(pressure)
+        for pipeline in self.stereo_pipelines:
+            pipeline.observe_tactile(pressure)
         log_tactile = getattr(self.viewer, "log_tactile", None)
         if log_tactile is not None:
             log_tactile(scan.t_s, pressure, forces)
 
-    def _deliver_stereo(self, payload: tuple[Future[StereoFrame], object]) -> None:
+    def _deliver_stereo(self, payload: tuple[int, Future[StereoFrame], object]) -> None:
         """Hand the pair to the vision worker (it runs beside the physics); record what it finished."""
-        pending, truth = payload
-        pipeline = self.stereo_pipeline
+        pair, pending, truth = payload
+        pipeline = self.stereo_pipelines[pair]
         if self._vision is None:
             self._vision = ThreadPoolExecutor(1, thread_name_prefix="vision")
         self._record_stereo(wait=False)
         while len(self._stereo_jobs) >= MAX_STEREO_BACKLOG:  # a starved worker: bound the memory
             self._record_stereo_oldest()
         # The worker waits for the pair itself: the rig never stalls on a frame still being rendered.
-        job = self._vision.submit(self._process_frame, pending, pipeline.hand_snapshot(), truth)
+        job = self._vision.submit(self._process_frame, pair, pending, pipeline.hand_snapshot(), truth)
         self._stereo_jobs.append(job)
 
     def _process_frame(
-        self, pending: Future[StereoFrame], hand: HandSnapshot, truth: object
-    ) -> tuple[StereoFrame, SurfaceFrame, dict | None, np.ndarray | None]:
+        self, pair: int, pending: Future[StereoFrame], hand: HandSnapshot, truth: object
+    ) -> tuple[int, StereoFrame, SurfaceFrame, dict | None, np.ndarray | None]:
         """On the vision worker: take the pair, reconstruct and fuse, score against the truth if known,
-        and trace the measured contour when a shape model predicts one."""
+        and (the first pair) trace the measured contour when a shape model predicts one."""
         frame = pending.result()
-        surface = self.stereo_pipeline.process(frame, hand)
+        surface = self.stereo_pipelines[pair].process(frame, hand)
         r = surface.reconstruction
         score = self.backend.score_surface(truth, r.points_hand, r.pixels)
-        return frame, surface, score, self._measured_contour(frame, surface)
+        measured = self._measured_contour(frame, surface) if pair == 0 else None
+        return pair, frame, surface, score, measured
 
     def _measured_contour(self, frame: StereoFrame, surface: SurfaceFrame) -> np.ndarray | None:
         """The camera's contour of this frame, traced as the model's training targets were: the
@@ -726,7 +746,10 @@ class Rig:
             self._record_stereo_oldest()
 
     def _record_stereo_oldest(self) -> None:
-        frame, surface, score, measured = self._stereo_jobs.popleft().result()
+        pair, frame, surface, score, measured = self._stereo_jobs.popleft().result()
+        if pair > 0:  # a further pair: its stream only (the viewer shows the first)
+            self._record(self._stereo_streams[pair][0], frame.t_s, surface.record())
+            return
         errors = None if score is None else score.pop("point_error_mm", None)  # for the viewer only
         self._record_surface(frame, surface, measured, errors)
         if score is not None:

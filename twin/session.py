@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from twin import __version__, units
-from twin.interface.backend import Backend
+from twin.interface.backend import Backend, stereo_calibration_key
 from twin.interface.errors import ConfigError, DeviceError, RunDirectoryLostError, TwinError
 from twin.processes import interrupts_deferred
 from twin.recording import RunWriter
@@ -135,7 +135,8 @@ def run_experiment(
             raise ConfigError(
                 f"--bbox {x},{y},{w},{h}: not a non-empty box inside the {width}x{height} image"
             )
-    tactile_calibration, stereo_pipeline = _load_run_files(backend, stereo_box)
+    tactile_calibration, stereo_pipelines = _load_run_files(backend, stereo_box)
+    stereo_pipeline = stereo_pipelines[0] if stereo_pipelines else None
     if shape_model is not None and stereo_pipeline is not None:
         from twin.vision.contour import view_from_hand
 
@@ -190,7 +191,7 @@ def run_experiment(
                     phases=phases,
                     safety=safety,
                     tactile_calibration=tactile_calibration,
-                    stereo_pipeline=stereo_pipeline,
+                    stereo_pipeline=stereo_pipelines,
                     shape_model=shape_model,
                 )
                 result = rig.run(controller, duration_s, progress)
@@ -231,9 +232,10 @@ def run_experiment(
 
 def _load_run_files(
     backend: Backend, stereo_box: tuple[int, int, int, int] | None
-) -> tuple[TaxelCalibration | None, StereoPipeline | None]:
+) -> tuple[TaxelCalibration | None, list[StereoPipeline]]:
     """Every file the run reads, loaded and checked from the backend's copies in a scratch directory,
-    before any device is touched or the run directory made: a bad table costs one line, nothing else."""
+    before any device is touched or the run directory made: a bad table costs one line, nothing else.
+    The stereo pipelines: one per pair of the rig (none without cameras)."""
     with tempfile.TemporaryDirectory() as tmp:
         try:
             files = backend.write_calibration(Path(tmp))
@@ -242,7 +244,10 @@ def _load_run_files(
             raise ConfigError(f"{name}: cannot read the calibration file ({exc.strerror or exc})") from None
         try:
             tactile = load_calibration(files) if backend.tactile is not None else None
-            stereo = _stereo_pipeline(backend, files, stereo_box) if backend.stereo is not None else None
+            stereo = [
+                _stereo_pipeline(backend, files, stereo_box if pair == 0 else None, pair, name)
+                for pair, (name, _) in enumerate(backend.named_stereo_pairs())
+            ]
         except ConfigError as exc:  # name the user's file, not the scratch copy that was read
             raise type(exc)(_source_names(str(exc), files, backend)) from None
     return tactile, stereo
@@ -314,23 +319,26 @@ def _close_failed(
 
 
 def _stereo_pipeline(
-    backend: Backend, files: dict[str, Path], box: tuple[int, int, int, int] | None
-) -> StereoPipeline | None:
-    """The run's vision pipeline from the calibration copied into the run, or None without cameras."""
-    if backend.stereo is None:
-        return None
+    backend: Backend,
+    files: dict[str, Path],
+    box: tuple[int, int, int, int] | None,
+    pair: int = 0,
+    name: str = "main",
+) -> StereoPipeline:
+    """The vision pipeline of the rig's pair `pair` (named `name`) from the calibration copied into the
+    run; `box`: the object's on its first frame (None: the backend's)."""
     from twin.vision.calibration import StereoCalibration
     from twin.vision.pipeline import StereoPipeline
     from twin.vision.reconstruct import Rectifier
 
-    path = files.get("stereo_calibration")
+    path = files.get(stereo_calibration_key(pair, name))
     if path is None:
         raise ConfigError(
             "the stereo cameras need a calibration file: run `twin calibrate cameras` and name it "
             "(--stereo-calibration, or calibration in rig.toml's [stereo])"
         )
     calibration = StereoCalibration.load(path)
-    spec = backend.stereo.spec.channels["left"]
+    spec = backend.named_stereo_pairs()[pair][1].spec.channels["left"]
     height, width = spec.shape[:2]
     if tuple(calibration.left.image_size) != (width, height):
         raise ConfigError(
@@ -338,7 +346,7 @@ def _stereo_pipeline(
             f"images, the cameras deliver {width}x{height}"
         )
     if box is None:
-        box = backend.object_box(Rectifier(calibration))
+        box = backend.object_box(Rectifier(calibration), pair=pair)
     if box is None:
         raise ConfigError(
             "the stereo cameras need the object's bounding box on the first frame: --bbox x,y,w,h"

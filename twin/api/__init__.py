@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 import sys
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -104,21 +104,41 @@ def sim_backend(
     cameras: bool = False,
     render_native: bool = False,
     stereo_calibration: str | Path | None = None,
+    camera_placements: str | Sequence[str] | None = None,
 ) -> Backend:
     """The twin: the hand, its 162 taxels and (with `cameras`) the stereo pair around `obj` (a library
     name, a `foam(...)`, or None for the empty hand), on simulated time; deterministic for a seed.
 
-    `stereo_calibration`: a `twin calibrate cameras` file to reconstruct with (default: the sim's truth)."""
+    `stereo_calibration`: a `twin calibrate cameras` file to reconstruct with (default: the sim's truth;
+    the first pair's). `camera_placements`: where the pairs stand, one pair each (twin.sim.cameras
+    PLACEMENTS: `lateral`, `opposite`, `top`, or one string `lateral,opposite`; default `lateral`
+    alone); a run records every pair."""
     from twin.sim.backend import SimBackend
 
     check_number(seed, "seed", kind=int, min=0, max=SEED_LIMIT - 1)  # numpy's range, in one line
     params = foam(obj) if isinstance(obj, str) else obj
+    placements = None
+    if camera_placements is not None:
+        from twin.sim.cameras import PLACEMENTS
+
+        if not cameras:
+            raise ConfigError("camera placements need cameras")
+        given = camera_placements
+        names = [n.strip() for n in (given.split(",") if isinstance(given, str) else given)]
+        unknown = [n for n in names if n not in PLACEMENTS]
+        if unknown or not names or len(set(names)) < len(names):
+            raise ConfigError(
+                f"camera placements {','.join(names) or '(none)'}: name each of {', '.join(PLACEMENTS)} "
+                "at most once"
+            )
+        placements = [PLACEMENTS[n] for n in names]
     return SimBackend(
         params,
         seed=seed,
         stereo=cameras,
         stereo_render_native=render_native,
         stereo_calibration_file=None if stereo_calibration is None else Path(stereo_calibration),
+        stereo_placement=placements,
     )
 
 

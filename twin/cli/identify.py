@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from twin.cli.common import SIZE_MM, WORKERS, add_mesh_scale, run_metadata
 from twin.interface.errors import ConfigError
@@ -119,19 +120,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     description = _described_object(args, metadata)
     check_writable(args.out or args.run_dir / "identify")  # every input checked; before minutes of computing
     from twin.identify.identify import identify_run
-    from twin.identify.report import FigureProcess, write_results
+    from twin.identify.report import FigureProcess, poisson_line, write_results
     from twin.sim.modulus import ImpreciseEstimateError
 
     ident = identify_run(args.run_dir, args.free, args.model)  # eq. 4: quick, and it fails early
     out = args.out or args.run_dir / "identify"
+    poisson = _poisson(args, description, ident.notes)
     try:
         estimate = _estimate_modulus(args, description)
     except ImpreciseEstimateError as exc:  # the interval alone, and why: written down, then the one line
-        ident.material = exc.estimate.to_json() | {"number_given": False, "why": str(exc)}
+        ident.material = exc.estimate.to_json() | {"number_given": False, "why": str(exc), "poisson": poisson}
         with FigureProcess() as figure_process:
             write_results(ident, out, figure_process)
         raise ImpreciseEstimateError(f"{exc} (the interval is in {out})", exc.estimate) from None
-    ident.material = estimate.to_json() | {"number_given": True}
+    ident.material = estimate.to_json() | {"number_given": True, "poisson": poisson}
     with FigureProcess() as figure_process:
         paths = write_results(ident, out, figure_process)
     if args.json:
@@ -152,6 +154,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         error = estimate.young_pa / estimate.twin_young_pa - 1
         line += f"; the twin's E {estimate.twin_young_pa / 1e3:.2f} kPa, error {100 * error:+.1f} %"
     print(line)
+    print(poisson_line(poisson))
     widths = ", ".join(f"{k} {100 * v:.1f} %" for k, v in estimate.sigma_log.items() if k != "total")
     print(
         f"  from the squeeze stiffness {estimate.stiffness_n_m:.0f} N/m over {estimate.cycles} cycles and "
@@ -164,6 +167,51 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     print(f"wrote {paths['results']}, {paths['figure'].name}, {paths['rerun'].name}")
     return 0
+
+
+CAMERAS_WOULD_ADD = (
+    "two opposite stereo pairs (`twin run compress --cameras --camera-placement lateral,opposite`) would "
+    "measure it: +-0.04-0.05 (95 %) on held-out runs of the fast block and cylinder (BENCHMARKS.md)"
+)
+
+
+def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  # noqa: ANN001
+    """nu for the results file: read from the run's two opposite stereo pairs where it has them
+    (twin.sim.poisson.read_run), which narrows the Poisson ratios the modulus simulations draw
+    (args.tolerances) to its 95 % interval within the tolerated range; else the tolerated range, and what
+    the cameras would add."""
+    from dataclasses import replace
+
+    from twin.recording import open_run
+    from twin.vision.strain_record import opposite_pair_streams
+
+    tolerated = args.tolerances.poisson
+    unmeasured = {
+        "poisson_ci95": list(tolerated),
+        "source": "the tolerated range (--poisson), drawn in every simulation: not measured",
+        "cameras_would_add": CAMERAS_WOULD_ADD,
+    }
+    run = open_run(args.run_dir)
+    if opposite_pair_streams(run) is None:
+        return unmeasured
+    from twin.sim.fit import foam_of_run
+    from twin.sim.modulus import describe
+    from twin.sim.poisson import drawn_poisson_range, read_run
+
+    if not args.no_progress:
+        print("reading the Poisson ratio from the two stereo pairs (12 simulations)...", file=sys.stderr)
+    try:
+        read = read_run(args.run_dir, describe(description if description is not None else foam_of_run(run)))
+    except ValueError as exc:
+        notes.append(
+            f"the two stereo pairs could not read the Poisson ratio ({exc}): the tolerated range is drawn"
+        )
+        return unmeasured
+    (low, high), note = drawn_poisson_range(tolerated, read.poisson_95)
+    if note:
+        notes.append(note)
+    args.tolerances = replace(args.tolerances, poisson=(low, high))
+    return read.to_json() | {"drawn_range": [low, high]}
 
 
 def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001

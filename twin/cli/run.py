@@ -47,6 +47,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"
     )
     c.add_argument(
+        "--camera-placement",
+        metavar="NAMES",
+        help="sim cameras: where the stereo pairs stand, one pair each, comma-separated (lateral, opposite, "
+        "top; default lateral): every pair is recorded (`stereo`, then `stereo_<name>`); lateral,opposite "
+        "sees both x faces and reads the Poisson ratio (docs/identification.md)",
+    )
+    c.add_argument(
         "--render-native",
         action="store_true",
         help="sim cameras: render at 640x480 and scale to 320x240 (slower) instead of at 320x240",
@@ -126,7 +133,10 @@ def _backend(args: argparse.Namespace, foam: FoamParams | None, cameras: bool = 
             cameras=cameras,
             render_native=getattr(args, "render_native", False),
             stereo_calibration=getattr(args, "stereo_calibration", None),
+            camera_placements=getattr(args, "camera_placement", None),
         )
+    if getattr(args, "camera_placement", None) is not None:
+        raise ConfigError("--camera-placement is for the sim; on hardware the rig's cameras are in rig.toml")
     if getattr(args, "stereo_calibration", None) is not None:
         raise ConfigError("--stereo-calibration is for the sim; on hardware set calibration in [stereo]")
     return api.hardware_backend(args.rig, hand=args.hand, cameras=cameras)
@@ -150,6 +160,8 @@ def cmd_compress(args: argparse.Namespace) -> int:
     shape_model = None if args.predict is None else api.load_shape_model(args.predict, object_name)
     if (args.bbox is not None or args.stereo_calibration is not None) and not args.cameras:
         raise ConfigError("--bbox and --stereo-calibration need --cameras")
+    if args.camera_placement is not None and not args.cameras:
+        raise ConfigError("--camera-placement needs --cameras")
     box = None
     if args.bbox is not None:
         from twin.vision.pipeline import parse_box

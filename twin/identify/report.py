@@ -165,6 +165,19 @@ def _figure_worker(conn: Connection) -> None:
     os._exit(0)  # the PNG is closed; skip tearing matplotlib down, which the caller would wait for
 
 
+def poisson_line(poisson: dict) -> str:
+    """One line: nu and its 95 % interval with where it came from, or the range drawn and what two pairs
+    would add."""
+    low, high = poisson["poisson_ci95"]
+    if "poisson" not in poisson:
+        return f"nu: the tolerated {low:.2f}-{high:.2f}, not measured; {poisson['cameras_would_add']}"
+    drawn = "-".join(f"{v:.3f}" for v in poisson["drawn_range"])
+    return (
+        f"nu = {poisson['poisson']:.3f}  (95 % {low:.3f}-{high:.3f}) from the two opposite stereo pairs' "
+        f"strains through {poisson['simulations']} simulations; the modulus simulations draw nu in {drawn}"
+    )
+
+
 def result_markdown(ident: Identification) -> str:
     """The result as a reader wants it first: E and its interval (or the interval alone and why), the
     squeeze it came from, and eq. 4 per finger (secant stiffness k_s, the reaction model's R^2)."""
@@ -179,6 +192,8 @@ def result_markdown(ident: Identification) -> str:
         if m.get("twin_young_pa"):
             lines.append(f"\nthe twin's E (the truth of a sim run): {m['twin_young_pa'] / 1e3:.1f} kPa")
         lines += ["", f"from the squeeze stiffness {m.get('squeeze_stiffness_n_m', float('nan')):.0f} N/m"]
+        if m.get("poisson"):
+            lines += ["", poisson_line(m["poisson"])]
     lines += ["", "| finger | k_s (N/m) | reaction model | R^2 |", "|---|---|---|---|"]
     for f in ident.fingers:
         lines.append(f"| F{f.finger} | {f.secant_n_m:.0f} | {f.fit.model} | {f.fit.r2:.2f} |")

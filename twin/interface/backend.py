@@ -31,6 +31,21 @@ class Clock(ABC):
         """The run starts now: a wall clock restarts from zero; sim time is left as it is."""
 
 
+STEREO_CALIBRATION_KEY = "stereo_calibration"
+"""The first pair's calibration in Backend.write_calibration's files (and the run's calibration/)."""
+
+
+def stereo_stream_name(pair: int, name: str) -> str:
+    """The recorded stream of the rig's pair `pair`, named `name` (Backend.named_stereo_pairs): `stereo`
+    for the first (every reader of a one-pair run reads it), `stereo_<name>` for a further one."""
+    return "stereo" if pair == 0 else f"stereo_{name}"
+
+
+def stereo_calibration_key(pair: int, name: str) -> str:
+    """Pair `pair`'s calibration in Backend.write_calibration's files (its file: the key + .json)."""
+    return STEREO_CALIBRATION_KEY if pair == 0 else f"{STEREO_CALIBRATION_KEY}_{name}"
+
+
 class Backend(ABC):
     """A set of devices on one clock."""
 
@@ -89,9 +104,14 @@ class Backend(ABC):
         """(MjModel, MjData) to draw in 3-D, where the backend has a MuJoCo world; None otherwise."""
         return None
 
-    def object_box(self, rectifier: Any) -> tuple[int, int, int, int] | None:
-        """The object's bounding box (x, y, w, h) in the rectified left view, where the backend knows
-        it (the sim projects its foam); None: the user draws it (`--bbox`)."""
+    def named_stereo_pairs(self) -> list[tuple[str, StereoCamera]]:
+        """Every stereo pair of the rig with the name of where it stands, `stereo` first: a run records
+        each (twin.rig.stereo_stream_name). Default: `stereo` alone, named `main`."""
+        return [] if self.stereo is None else [("main", self.stereo)]
+
+    def object_box(self, rectifier: Any, *, pair: int = 0) -> tuple[int, int, int, int] | None:
+        """The object's bounding box (x, y, w, h) in the rectified left view of pair `pair`, where the
+        backend knows it (the sim projects its foam); None: the user draws it (`--bbox`)."""
         return None
 
     def surface_truth(self, rectifier: Any) -> Any:

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 
 from twin.assets import HAND_XML
-from twin.interface.backend import Backend, Clock
+from twin.interface.backend import Backend, Clock, stereo_calibration_key
 from twin.interface.hand_spec import HandConfig
 from twin.interface.stereo_spec import StereoConfig
 from twin.interface.tactile_spec import TactileConfig
@@ -116,10 +116,16 @@ class SimBackend(Backend):
         self.stereo: SimStereo | None = None
         self.stereo_pairs: list[SimStereo] = []
         """Every pair of the rig, `stereo` first (one per placement)."""
+        self.stereo_placements: list[str] = []
+        """Where each pair of `stereo_pairs` stands (twin.sim.cameras.CameraPlacement.name)."""
         if stereo:
-            from twin.sim.cameras import SimStereo, pair_camera_names
+            from twin.sim.cameras import DEFAULT_PLACEMENT, SimStereo, pair_camera_names
 
-            n_pairs = len(stereo_placement) if isinstance(stereo_placement, Sequence) else 1
+            placements = stereo_placement if isinstance(stereo_placement, Sequence) else [stereo_placement]
+            self.stereo_placements = [DEFAULT_PLACEMENT if p is None else p.name for p in placements]
+            if len(set(self.stereo_placements)) < len(self.stereo_placements):
+                raise ValueError(f"camera placements named twice: {', '.join(self.stereo_placements)}")
+            n_pairs = len(placements)
             self.stereo_pairs = [
                 SimStereo(
                     self.world,
@@ -143,6 +149,10 @@ class SimBackend(Backend):
     def devices(self) -> list[Any]:
         """The devices present, hand first, every stereo pair last."""
         return [d for d in (self.hand, self.tactile) if d is not None] + list(self.stereo_pairs)
+
+    def named_stereo_pairs(self) -> list[tuple[str, SimStereo]]:
+        """Every pair with its placement's name, `stereo` first."""
+        return list(zip(self.stereo_placements, self.stereo_pairs, strict=True))
 
     @property
     def clock(self) -> Clock:
@@ -257,14 +267,18 @@ class SimBackend(Backend):
         if self.stereo is not None:
             directory.mkdir(parents=True, exist_ok=True)
             path = directory / STEREO_CALIBRATION_FILE
+            mujoco.mj_kinematics(self.world.model, self.world.data)  # camera poses before any step
             if self.stereo_calibration_file is not None:
                 from twin.vision.calibration import StereoCalibration
 
                 StereoCalibration.load(self.stereo_calibration_file).save(path)
             else:
-                mujoco.mj_kinematics(self.world.model, self.world.data)  # camera poses before any step
                 self.stereo.calibration().save(path)
             files["stereo_calibration"] = path
+            for name, pair in self.named_stereo_pairs()[1:]:  # a further pair: the twin's truth
+                key = stereo_calibration_key(1, name)
+                pair.calibration().save(directory / f"{key}.json")
+                files[key] = directory / f"{key}.json"
         return files
 
     def scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
@@ -290,4 +304,5 @@ class SimBackend(Backend):
             "hand_config": vars(self.hand.config),
             "tactile_config": vars(self.tactile.config) if self.tactile else None,
             "stereo_config": vars(self.stereo.config) if self.stereo else None,
+            "stereo_placements": list(self.stereo_placements) if self.stereo else None,
         }

@@ -58,12 +58,15 @@ STAGES = ("rectify", "track", "disparity", "cloud", "fuse")
 """Timed stages of one frame, in `process_ms` order (`fuse` includes the mesh)."""
 
 
-def stereo_stream_spec(rate_hz: float) -> StreamSpec:
-    """The recorded stereo stream: both frames (JPEG) and the fused surface in the hand frame."""
+def stereo_stream_spec(rate_hz: float, name: str = "stereo", placement: str | None = None) -> StreamSpec:
+    """A recorded stereo stream: both frames (JPEG) and the fused surface in the hand frame (`name`:
+    twin.interface.backend.stereo_stream_name; `placement`: where the pair stands, if known)."""
+    where = "" if placement is None else f" at {placement}"
     return StreamSpec(
-        name="stereo",
+        name=name,
         rate_hz=rate_hz,
-        description="Flea2 pair (JPEG, as delivered) and the fused surface (paper §4.2 + §5), hand frame",
+        description=f"Flea2 pair{where} (JPEG, as delivered) and the fused surface (paper §4.2 + §5), "
+        "hand frame",
         fields={
             "left_jpeg": FieldSpec(
                 unit="byte",

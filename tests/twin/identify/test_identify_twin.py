@@ -111,6 +111,9 @@ def test_cli_writes_results_figure_and_rerun_file_with_the_modulus(sphere_identi
     assert 0 < low < m["young_pa"] < high and set(m["sigma_log"]) == {"noise", "nuisance", "total"}
     assert m["object"]["shape"] == "sphere" and m["twin_young_pa"] == SPHERE_YOUNG_PA
     assert m["error"] == pytest.approx(m["young_pa"] / SPHERE_YOUNG_PA - 1)
+    # no stereo pairs: nu is the tolerated range, drawn, and the results say what two pairs would add
+    assert m["poisson"]["poisson_ci95"] == [0.2, 0.35] and "poisson" not in m["poisson"]
+    assert "--camera-placement lateral,opposite" in m["poisson"]["cameras_would_add"]
     assert (out / "identify.png").stat().st_size > 10_000
     # the figure's series in Rerun, on the run's timeline (the viewer merges it with run.rrd)
     ident = identify_run(printed["run"], free_run)

@@ -1,0 +1,52 @@
+"""The twin's cheap observation of the two-pair strains (cameras read at rest and at the troughs) reads
+what a recorded run of the same twin reads: the grid of simulations and the run share one statistic."""
+
+from pathlib import Path
+
+import pytest
+
+from twin import api
+from twin.sim import poisson
+from twin.sim.foam import LIBRARY
+from twin.sim.modulus import describe
+
+pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
+
+
+@pytest.mark.slow
+def test_the_twins_observation_matches_a_recorded_two_pair_run(tmp_path: Path):
+    foam = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
+    sparse = poisson.observe(foam, seed=11)
+    backend = api.sim_backend(foam, seed=11, cameras=True, camera_placements="lateral,opposite")
+    api.compress(backend, duration_s=poisson.DURATION_S, out=tmp_path / "run")
+    recorded = poisson.observe_recorded(tmp_path / "run", foam)
+    assert len(recorded.width_m) == len(sparse.width_m) == 2
+    (ex_r, ez_r), (ex_s, ez_s) = recorded.strains(), sparse.strains()
+    # The squeeze's strains (eps_x ~ +0.04, eps_z ~ -0.12): within a tenth of the noise taken for them
+    # (twin.vision.lateral_strain.STRAIN_NOISE: 0.002, 0.003); the placement read within 0.1 mm in x.
+    assert 0.02 < ex_r < 0.08 and -0.2 < ez_r < -0.05
+    assert ex_s == pytest.approx(ex_r, abs=0.0005) and ez_s == pytest.approx(ez_r, abs=0.0005)
+    assert sparse.centre_x_m == pytest.approx(recorded.centre_x_m, abs=1e-4)
+    assert recorded.centre_x_m == pytest.approx(0.001, abs=5e-4)
+
+
+@pytest.mark.slow
+def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(tmp_path: Path):
+    """`twin identify`'s read of nu (twin.sim.poisson.read_run) on a recorded two-pair run of the fast
+    block at nu 0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval holds the truth and is under
+    +-0.06 wide (the prior's range is +-0.075); the placement is read within 0.5 mm in x."""
+    truth = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
+    backend = api.sim_backend(truth, seed=5, cameras=True, camera_placements=["lateral", "opposite"])
+    api.compress(backend, duration_s=poisson.DURATION_S, out=tmp_path / "run")
+    read = poisson.read_run(tmp_path / "run", describe(LIBRARY["block"]))
+    low, high = read.poisson_95
+    assert low < 0.3 < high and high - low < 0.12, read
+    assert read.placement_m[0] == pytest.approx(0.001, abs=5e-4), read
+    assert read.young_95_pa[0] < read.young_pa < read.young_95_pa[1] and read.simulations == 12
+
+
+def test_the_cameras_interval_narrows_the_tolerated_poisson_range():
+    assert poisson.drawn_poisson_range((0.2, 0.35), (0.26, 0.31)) == ((0.26, 0.31), None)
+    assert poisson.drawn_poisson_range((0.2, 0.35), (0.3, 0.4)) == ((0.3, 0.35), None)
+    drawn, note = poisson.drawn_poisson_range((0.2, 0.35), (0.38, 0.45))
+    assert drawn == (0.2, 0.35) and "outside the tolerated 0.2-0.35" in note

@@ -172,9 +172,11 @@ def poisson_line(poisson: dict) -> str:
     if "poisson" not in poisson:
         return f"nu: the tolerated {low:.2f}-{high:.2f}, not measured; {poisson['cameras_would_add']}"
     drawn = "-".join(f"{v:.3f}" for v in poisson["drawn_range"])
+    how = "" if poisson.get("narrowed", True) else " (the tolerated range: --poisson-from-cameras narrows it)"
     return (
         f"nu = {poisson['poisson']:.3f}  (95 % {low:.3f}-{high:.3f}) from the two opposite stereo pairs' "
-        f"strains through {poisson['simulations']} simulations; the modulus simulations draw nu in {drawn}"
+        f"strains through {poisson['simulations']} simulations; the modulus simulations draw nu in "
+        f"{drawn}{how}"
     )
 
 

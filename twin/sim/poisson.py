@@ -132,15 +132,29 @@ def read_joint(
     over `young_pa` x `poisson` (one run each, seeds from `seed`), read by read_modulus_and_poisson;
     and the placement (m). len(young_pa) x len(poisson) + 1 simulations of DURATION_S."""
     where = placement_m(run, foam, float(np.exp(np.mean(np.log(young_pa)))), seed)
+    reading, _ = _grid_read(run, foam, young_pa, poisson, where, seed + 1)
+    return reading, where
+
+
+def _grid_read(
+    run: StrainObservation,
+    foam: FoamParams,
+    young_pa: Sequence[float],
+    poisson: Sequence[float],
+    where: tuple[float, float],
+    first_seed: int,
+) -> tuple[StrainReading, int]:
+    """The twin at `where` over `young_pa` x `poisson` (one run each, seeds from `first_seed`), the run's
+    two strains read through them (read_modulus_and_poisson); and how many simulations that took."""
     young, nus, strains = [], [], []
     for i, e_pa in enumerate(young_pa):
         for k, nu in enumerate(poisson):
-            seen = observe(twin_foam(foam, e_pa, nu, where), seed + 1 + len(poisson) * i + k)
+            seen = observe(twin_foam(foam, e_pa, nu, where), first_seed + len(poisson) * i + k)
             young.append(e_pa)
             nus.append(nu)
             strains.append(seen.strains())
     reading = read_modulus_and_poisson(run.strains(), np.array(young), np.array(nus), np.array(strains))
-    return reading, where
+    return reading, len(young)
 
 
 def young_grid_pa(centre_pa: float, half_width: float = math.log(57 / 28) / 2) -> tuple[float, float, float]:
@@ -202,14 +216,7 @@ def read_run(run_dir: Path | str, foam: FoamParams, seed: int = SEED) -> Poisson
     probe = coarse[int(np.argmin(np.abs(eps_z - run.strains()[1])))]
     y_m = float(np.clip(run.centre_y_reading_m - probe.centre_y_reading_m, -Y_CLIP_M, Y_CLIP_M))
     where = (run.centre_x_m, y_m)
-    young, nus, strains = [], [], []
-    for i, e_pa in enumerate(young_grid_pa(math.exp(log_e))):
-        for k, nu in enumerate(SIM_POISSON):
-            seen = observe(twin_foam(foam, e_pa, nu, where), seed + 10 + len(SIM_POISSON) * i + k)
-            young.append(e_pa)
-            nus.append(nu)
-            strains.append(seen.strains())
-    reading = read_modulus_and_poisson(run.strains(), np.array(young), np.array(nus), np.array(strains))
+    reading, simulated = _grid_read(run, foam, young_grid_pa(math.exp(log_e)), SIM_POISSON, where, seed + 10)
     return PoissonRead(
         reading.poisson,
         reading.poisson_95,
@@ -217,7 +224,7 @@ def read_run(run_dir: Path | str, foam: FoamParams, seed: int = SEED) -> Poisson
         reading.young_95_pa,
         where,
         run.strains(),
-        len(coarse) + len(young),
+        len(coarse) + simulated,
     )
 
 

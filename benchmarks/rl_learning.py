@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import tempfile
 import time
 
 import gymnasium as gym
@@ -89,7 +90,9 @@ def _train(steps: int) -> tuple[object, dict]:
         "MultiInputPolicy", vec, n_steps=N_STEPS // TRAIN_ENVS, seed=TRAIN_SEED, device="cpu", verbose=0
     )
     t0 = time.perf_counter()
-    model.learn(total_timesteps=steps)
+    with tempfile.TemporaryDirectory() as logs:  # SB3 leaves an empty SB3-<date> folder per learn() in /tmp
+        os.environ["SB3_LOGDIR"] = logs
+        model.learn(total_timesteps=steps)
     wall = time.perf_counter() - t0
     # Each training episode's reward and where it ended, in env steps summed over the workers.
     ends, rewards = [], []

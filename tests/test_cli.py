@@ -424,7 +424,6 @@ def test_rig_messages_name_the_file_once(tmp_path: Path):
     assert one_line(result, "[hand] settings given without a port").count("noport.toml") == 1
 
 
-@pytest.mark.xdist_group("realtime")
 def test_a_hardware_run_that_recovered_cycles_says_so_in_one_warning_line(tmp_path: Path, capsys):
     # drop@31: the emulator swallows one reply; the driver re-enters RealTime mode and loses no sample.
     # The recovery is listed in run.json; the terminal gets one summary line, not the driver's log.

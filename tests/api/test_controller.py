@@ -59,7 +59,6 @@ def _check(run: twin.Run, controller: CloseUntilTouch, backend: str) -> np.ndarr
     return held
 
 
-@pytest.mark.xdist_group("realtime")  # the emulated hand runs on wall time
 def test_a_custom_controller_runs_on_the_twin_and_on_the_emulated_hand(tmp_path: Path):
     on_sim, on_hw = CloseUntilTouch(), CloseUntilTouch()
     a = twin.run(

@@ -19,7 +19,6 @@ def _slow(reading: HandReading) -> None:
     time.sleep(0.06)
 
 
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_hardware_loop_below_its_rate_warns_the_caller(tmp_path: Path):
     with pytest.warns(twin.RunWarning) as caught:
         outcome = twin.run(
@@ -51,7 +50,6 @@ def test_a_run_as_declared_warns_nothing(tmp_path: Path):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")
 def test_the_cli_prints_a_recovered_cycle_once_and_no_python_warning(tmp_path: Path):
     # drop@31: the emulator swallows one reply and the driver recovers the cycle (a RunWarning from the
     # API, which the command prints as its own line instead of Python's warning text).

@@ -59,7 +59,6 @@ def test_why_the_pads_bin_contact_forces():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
 def test_stereo_benchmarks_report_speed_accuracy_and_calibration():
     from benchmarks import stereo_calibration, stereo_pipeline, stereo_run
 

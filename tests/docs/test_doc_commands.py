@@ -249,7 +249,6 @@ def test_every_command_in_the_docs_is_run_or_says_why_not():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # twin view's ports; runs on the hardware backend share its group
 def test_the_readme_quick_start_runs_as_written(tmp_path: Path):
     out = run_page("README.md", tmp_path)
     assert out["twin --version"].strip() == f"twin {twin.__version__}"
@@ -261,7 +260,6 @@ def test_the_readme_quick_start_runs_as_written(tmp_path: Path):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # a hardware run against the emulated rig on wall time
 def test_the_command_examples_run_as_written(tmp_path: Path):
     out = run_page("docs/cli.md", tmp_path)
     for name in ("firm", "sphere", "free", "hw", "sim"):
@@ -276,7 +274,6 @@ def test_the_command_examples_run_as_written(tmp_path: Path):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # examples drive the emulated hand on wall time
 def test_the_python_api_examples_run_as_written(tmp_path: Path, capsys):
     run_page("docs/api.md", tmp_path)
     printed = capsys.readouterr().out

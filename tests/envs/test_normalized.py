@@ -93,6 +93,7 @@ def _docs_example(marker: str) -> str:
 def test_the_docs_stable_baselines3_example_runs_as_written(tmp_path: Path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("TWIN_PPO_STEPS", "256")  # a few hundred steps: that it runs, not that it learns
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path / "sb3"))  # else an SB3-<date> folder in /tmp per learn()
     scope: dict = {}
     threads = torch.get_num_threads()
     try:

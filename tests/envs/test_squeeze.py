@@ -76,7 +76,6 @@ def test_an_action_outside_the_rig_limits_is_refused_by_the_safety_layer():
     env.close()
 
 
-@pytest.mark.xdist_group("realtime")  # the emulated rig runs on wall time
 def test_check_env_and_the_squeeze_task_on_the_emulated_rig(tmp_path: Path):
     with RigEmulator("block", seed=0) as emulator:
         emulator.serve("pty")

@@ -11,8 +11,6 @@ from twin.cli import main
 from twin.interface.errors import ConfigError
 from twin.recording.reader import Run
 
-pytestmark = pytest.mark.xdist_group("realtime")  # renders and two worker processes
-
 DURATION_S = 6.5  # the grasp settles at ~3.5 s; then 3 s of varied compression
 
 

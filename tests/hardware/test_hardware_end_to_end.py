@@ -62,7 +62,6 @@ def _emulate_rig(tmp_path: Path, *extra: str):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_with_cameras: Path, tmp_path):
     """The whole rig against emulators: hand, pads and the cameras' MJPEG streams, one flag."""
     hw = twin(
@@ -84,7 +83,6 @@ def test_hardware_run_with_cameras_reconstructs_the_emulated_foam(emulated_rig_w
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     sim = twin("run", "compress", "--duration", "10", "--out", "sim", "--no-progress", cwd=tmp_path)
     assert sim.returncode == 0, sim.stderr
@@ -246,7 +244,6 @@ def test_emulator_serves_tcp_and_exits_after_its_duration(tmp_path: Path):
     assert time.monotonic() - t0 < 30
 
 
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation: never beside a camera run
 def test_the_rig_going_away_mid_run_is_one_clear_error_and_the_run_is_kept(tmp_path: Path):
     """`twin emulate rig` stops (Ctrl-C) under a 30 s run once a second of it is on disk, and every port
     vanishes at once: one error line, no traceback, exit 2, and the samples before it are in a run
@@ -285,7 +282,6 @@ def _wait_for_a_record_batch(stream: Path, timeout_s: float = 60) -> None:
     raise AssertionError(f"{stream} got no samples within {timeout_s:g} s")
 
 
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_killed_emulator_is_a_lost_port_not_a_watchdog_stop(tmp_path: Path):
     """SIGKILL on `twin emulate hand` mid-run: the pty goes away (EOF/EIO). The error says the port was
     lost (not that feedback stopped) and does not claim the hand was idled: nothing acknowledged T."""

@@ -107,7 +107,6 @@ def test_an_interrupted_run_says_so_and_that_the_hand_acknowledged_its_idle(tmp_
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_watchdog_stop_on_a_silent_hand_says_the_idle_failed(tmp_path):
     """The emulated hand stops answering for good (mute): the watchdog stops the run, the idle gets no
     answer either, and both run.json and the raised error say the hand may still be powered."""
@@ -140,7 +139,6 @@ def test_a_garbage_tactile_table_is_refused_before_the_hand_is_touched(tmp_path)
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_hardware_loop_that_misses_its_rate_says_so(tmp_path):
     """A procedure too slow for 30 Hz (60 ms a reading): the run completes, and run.json, the outcome
     and the reader carry one warning line with the rate the loop achieved."""

@@ -26,8 +26,6 @@ from twin.sim.cameras import LEFT_CAMERA, RIGHT_CAMERA
 from twin.sim.foam import get_object
 from twin.vision.calibration import StereoCalibration, StereoCalibrationError
 
-pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
-
 BITS = 12
 
 

@@ -15,7 +15,6 @@ from twin.sim.replay import Commands, replay
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("sphere")  # on the worker that holds the session's sphere run
 def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
     run = Run(sphere_run)
     commands = Commands.from_run(run, until_s=fit_window_s(run))
@@ -33,8 +32,6 @@ def test_a_replay_with_the_runs_own_foam_reproduces_the_run(sphere_run):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("sphere")  # beside the identification it starts from (its session fixture)
-# (inert under pytest 9 with xdist 3.8, as every xdist_group here: see pyproject.toml's --dist comment)
 def test_the_fit_finds_the_modulus_within_3_percent_and_holds_what_the_run_cannot_tell(
     sphere_run, sphere_identified, tmp_path, capsys
 ):

@@ -98,7 +98,6 @@ def test_a_run_without_pads_is_refused_naming_the_stream(no_tactile_run, capsys)
     assert err.count("\n") == 1 and "no 'tactile' stream" in err
 
 
-@pytest.mark.xdist_group("sphere")  # shares the session's identification (sphere_identified)
 def test_cli_writes_results_figure_and_rerun_file_with_the_modulus(sphere_identified, free_run):
     """`twin identify --json` prints the results file it wrote: eq. 4 per finger and the modulus the
     twin inferred, which on a sim run is set beside the twin's own (the truth) with its error."""
@@ -172,7 +171,6 @@ def test_the_rerun_file_names_and_colours_its_series_on_its_own(ident, tmp_path)
     assert len(names) == 4 * len(ident.fingers)
 
 
-@pytest.mark.xdist_group("sphere")  # shares the session's identification (sphere_identified)
 def test_the_rerun_file_carries_the_result_and_a_blueprint_that_shows_it(sphere_identified):
     """`rerun run.rrd identify/identify.rrd`, without `twin view`: identify.rrd holds the result as a
     Markdown document (E, its interval, k_s and R^2 per finger) and the run's blueprint with an

@@ -43,7 +43,6 @@ def _one_line(capsys: pytest.CaptureFixture, *fragments: str) -> str:
     return err
 
 
-@pytest.mark.xdist_group("sphere")  # shares the session's identification (sphere_identified)
 def test_the_spheres_modulus_is_recovered_within_its_interval(sphere_identified):
     """The twin's procedure run again at candidate moduli gives back E of a sphere at 57.3 kPa within
     10 %, inside a 95 % interval that is the quadrature sum of its finite, non-negative parts (the

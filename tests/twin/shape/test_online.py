@@ -12,8 +12,6 @@ from twin.session import RRD_NAME
 from twin.shape.model import ShapeMLP, ShapeModel
 from twin.viz.rerun_log import RECTIFIED_ENTITY, read_rrd_entities
 
-pytestmark = pytest.mark.xdist_group("realtime")  # a camera run
-
 
 @pytest.fixture
 def model_dir(tmp_path):

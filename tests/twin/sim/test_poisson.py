@@ -10,8 +10,6 @@ from twin.sim import poisson
 from twin.sim.foam import LIBRARY
 from twin.sim.modulus import describe
 
-pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
-
 
 @pytest.mark.slow
 def test_the_twins_observation_matches_a_recorded_two_pair_run(tmp_path: Path):

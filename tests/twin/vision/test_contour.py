@@ -25,8 +25,6 @@ from twin.vision.contour import (
 )
 from twin.vision.reconstruct import Rectifier
 
-pytestmark = pytest.mark.xdist_group("realtime")  # renders: keep off the wall-clock tests
-
 
 def _disc(h=120, w=160, center=(80, 60), r=30):
     mask = np.zeros((h, w), np.uint8)

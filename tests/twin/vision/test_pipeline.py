@@ -14,8 +14,6 @@ from twin.recording import open_run
 from twin.vision.fusion import TACTILE, VISION
 from twin.vision.pipeline import STAGES, decode_jpeg
 
-pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
-
 TWIN = [sys.executable, "-m", "twin.cli"]
 
 

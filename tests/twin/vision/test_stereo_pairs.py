@@ -15,8 +15,6 @@ from twin.vision.fusion import VISION
 from twin.vision.pipeline import decode_jpeg
 from twin.vision.strain_record import observe_run, opposite_pair_streams
 
-pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
-
 TWIN = [sys.executable, "-m", "twin.cli"]
 
 

@@ -223,14 +223,12 @@ def test_a_free_run_has_every_view_filled_and_ranged(free_run):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # CPU-heavy camera run: never beside the other camera runs
 def test_a_camera_run_has_every_view_filled_and_ranged(camera_run):
     names = _check_every_view(camera_run / "run.rrd")
     assert {"left camera", "reconstruction error vs truth (mm): median dark, p90 light"} <= names
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_hardware_run_has_every_view_filled_and_ranged_and_marks_its_cycles(hardware_run):
     """The hand-only hardware run: no pad or truth views, the rest filled and ranged; the recovered
     cycle is a lane and a warning at the reading that followed it, the late loop a lane from the first
@@ -258,7 +256,6 @@ def test_a_hardware_run_has_every_view_filled_and_ranged_and_marks_its_cycles(ha
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("realtime")  # wall-clock emulation
 def test_a_hardware_run_with_pads_has_every_view_filled_and_marks_a_lost_frame(hardware_pads_run):
     """The pads' views are there and filled; the lost frame is a lane and a warning at the scan after
     it, where the recorded count of dropped frames steps, cleared at the next scan."""

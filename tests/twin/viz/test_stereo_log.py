@@ -30,8 +30,6 @@ from twin.viz.rerun_log import (
     read_rrd_views,
 )
 
-pytestmark = pytest.mark.xdist_group("realtime")  # CPU-heavy: see pyproject.toml
-
 FRAMES = 3
 MAX_BYTES_PER_FRAME = 400_000
 """Whole file / frames, blueprint and statics included: measured ~330 kB for 3 frames 0.1 s apart (the

@@ -175,6 +175,7 @@ def run_experiment(
                     stereo=stereo_pipeline is not None,
                     predict=shape_model is not None,
                     tactile=backend.tactile is not None,
+                    force_cap_kg=safety.limits.max_fingertip_force_kg,
                 )
                 recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
             try:

@@ -134,7 +134,7 @@ _HAND = {
     f"/plots/hand/{f}": (FINGERS, False, 2.0) for f in ("position_counts", "velocity_rad_s", "torque_nm")
 }
 _HAND["/plots/hand/force_kg"] = (FINGERS, False, 2.0)
-_HAND[f"/{FORCE_CAP_ENTITY}"] = ((f"{FINGERTIP_FORCE_LIMIT_KG:g} kg cap",), False, 1.0)
+_HAND[f"/{FORCE_CAP_ENTITY}"] = (("force cap",), False, 1.0)
 _COMMAND = {"/plots/command/position_counts": (tuple(f"{f} command" for f in FINGERS), True, 1.5)}
 _PADS = ("f1_tip", "f2_tip", "f3_tip", "f1_inner", "f2_inner", "f3_inner", "palm")
 _TIPS = ("F1 tip", "F2 tip", "F3 tip")
@@ -181,11 +181,10 @@ SERIES_RGB = {path: [ERROR_RGB] for path in _STEREO_ERROR}
 DEVICE_RANGES = {
     "/plots/hand/position_counts": (0.0, float(FINGER_MAX_COUNTS)),
     "/plots/command/position_counts": (0.0, float(FINGER_MAX_COUNTS)),
-    "/plots/hand/force_kg": (0.0, 1.25 * FINGERTIP_FORCE_LIMIT_KG),
-    f"/{FORCE_CAP_ENTITY}": (0.0, 1.25 * FINGERTIP_FORCE_LIMIT_KG),
 }
-"""y ranges of the device's own: the drive's 0-17,800 counts; the fingertip force to past its cap. A view
-of other entities spans the run's recorded data (RunKind.y_ranges)."""
+"""y ranges of the device's own: the drive's 0-17,800 counts (the fingertip force's runs to past the run's
+own cap: device_range). A view of other entities spans the run's recorded data (RunKind.y_ranges)."""
+FORCE_PATHS = ("/plots/hand/force_kg", f"/{FORCE_CAP_ENTITY}")
 
 
 @dataclass(frozen=True)
@@ -207,6 +206,9 @@ class RunKind:
     """When the compress phase began (s): the compression window starts there."""
     window_y_range: tuple[float, float] | None = None
     """The finger positions' and commands' range over the compress phase (counts)."""
+    force_cap_kg: float = FINGERTIP_FORCE_LIMIT_KG
+    """The safety layer's fingertip-force cap on this run (a rig.toml may set its own; else the
+    datasheet's)."""
 
     @property
     def name(self) -> str:
@@ -231,11 +233,18 @@ def padded(low: float, high: float) -> tuple[float, float]:
     return (low - margin, high + margin)
 
 
+def device_range(kind: RunKind, path: str) -> tuple[float, float] | None:
+    """The device's own y range of a plotted entity (DEVICE_RANGES; the force to 1.25x the run's cap)."""
+    if path in FORCE_PATHS:
+        return (0.0, 1.25 * kind.force_cap_kg)
+    return DEVICE_RANGES.get(path)
+
+
 def y_range(kind: RunKind, paths: Sequence[str]) -> tuple[float, float] | None:
     """A view's y range: the device's where its entities have one (widened, with a margin, only where
     the run's values leave it: a gauge's offset below 0 kg), else the span of the run's recorded values
     (padded); None while nothing is recorded."""
-    device = [DEVICE_RANGES[p] for p in paths if p in DEVICE_RANGES]
+    device = [r for r in (device_range(kind, p) for p in paths) if r is not None]
     recorded = {path: (lo, hi) for path, lo, hi in kind.y_ranges}
     spans = [recorded[p] for p in paths if p in recorded]
     data = (min(lo for lo, _ in spans), max(hi for _, hi in spans)) if spans else None
@@ -327,7 +336,7 @@ def hand_views(kind: RunKind) -> list[rrb.View]:
         _plot("joint velocity (rad/s)", ["/plots/hand/velocity_rad_s"], kind),
         _plot("strain-gauge torque, eq. 2 (N·m)", ["/plots/hand/torque_nm"], kind),
         _plot(
-            f"fingertip force, eq. 3 (kg); grey: the {FINGERTIP_FORCE_LIMIT_KG:g} kg cap",
+            f"fingertip force, eq. 3 (kg); grey: the {kind.force_cap_kg:g} kg cap",
             ["/plots/hand/force_kg", f"/{FORCE_CAP_ENTITY}"],
             kind,
         ),
@@ -534,6 +543,7 @@ def kind_of_run(run_dir: Path, eye_target_m: Sequence[float] | None = None) -> R
     streams = info.get("streams", {}) if isinstance(info, dict) else {}
     experiment = meta.get("experiment", {})
     facts = recorded_plot_facts([run_dir / "run.rrd", *sorted(run_dir.glob("*/*.rrd"))])
+    cap = meta.get("force_cap", {}).get("limit_kg") if isinstance(meta.get("force_cap"), dict) else None
     return RunKind(
         experiment=str(experiment.get("name", "compress")) if isinstance(experiment, dict) else "compress",
         sim=meta.get("backend", "sim") == "sim",
@@ -542,5 +552,6 @@ def kind_of_run(run_dir: Path, eye_target_m: Sequence[float] | None = None) -> R
         identify=any(run_dir.glob("*/identify.rrd")),
         tactile="tactile" in streams or not streams,
         eye_target_m=None if eye_target_m is None else tuple(float(x) for x in eye_target_m),
+        force_cap_kg=float(cap) if isinstance(cap, int | float) and cap > 0 else FINGERTIP_FORCE_LIMIT_KG,
         **facts,
     )

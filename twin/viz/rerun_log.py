@@ -43,7 +43,6 @@ if TYPE_CHECKING:
     from twin.vision.reconstruct import Reconstruction
 
 from twin import units
-from twin.units import FINGERTIP_FORCE_LIMIT_KG
 from twin.viz.blueprint import (
     CLOUD_ENTITY,
     COMPRESS_PHASE,
@@ -623,15 +622,16 @@ class RunRecording:
             "force_kg": physical["force_kg"],
         }
         self.log_scalars("hand", t_s, values, labels=dict.fromkeys(values, FINGER_LABELS))
-        self.log_scalars("hand", t_s, {"force_cap_kg": FINGERTIP_FORCE_LIMIT_KG})
-        at_cap = np.asarray(physical["force_kg"], dtype=float)[:3] >= FINGERTIP_FORCE_LIMIT_KG
+        cap_kg = self.kind.force_cap_kg
+        self.log_scalars("hand", t_s, {"force_cap_kg": cap_kg})
+        at_cap = np.asarray(physical["force_kg"], dtype=float)[:3] >= cap_kg
         for k in np.flatnonzero(at_cap != self._at_cap):
             finger = FINGER_LABELS[k]
             text = (
-                f"{finger} at the {FINGERTIP_FORCE_LIMIT_KG:g} kg fingertip-force cap: the safety layer "
+                f"{finger} at the {cap_kg:g} kg fingertip-force cap: the safety layer "
                 "lets it hold or open, not close further"
             )
-            cap = f"at the {FINGERTIP_FORCE_LIMIT_KG:g} kg cap"
+            cap = f"at the {cap_kg:g} kg cap"
             self.log_event(
                 t_s, f"{finger}_force_cap", cap if at_cap[k] else None, text if at_cap[k] else None
             )

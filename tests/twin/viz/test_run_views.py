@@ -24,7 +24,7 @@ from twin.safety import UnsafeCommandError
 from twin.session import run_experiment
 from twin.sim.backend import SimBackend
 from twin.sim.foam import LIBRARY
-from twin.viz.blueprint import COMPRESS_PHASE
+from twin.viz.blueprint import COMPRESS_PHASE, kind_of_run
 from twin.viz.rerun_log import read_rrd_blueprint, read_rrd_entities, read_rrd_scalars
 
 STATE = rr.StateChange.descriptor_state().component
@@ -304,6 +304,14 @@ def test_a_clipped_command_is_a_lane_where_the_finger_sits_at_the_cap(tmp_path):
         rows = [text for _, text in _log(rrd) if text.startswith(f"F{k + 1} command clipped: ")]
         assert len(rows) == len(clipped)
         assert all("held by the safety layer at the 1 kg force cap" in r for r in rows)
+    # The run's own cap, not the datasheet's 2 kg: the line, the events, the force view (title, y range)
+    _, cap_line = read_rrd_scalars(rrd, "/plots/hand/force_cap_kg")
+    assert np.all(cap_line == cap_kg)
+    assert any(s == "at the 1 kg cap" for k in range(3) for _, s in _states(rrd, f"F{k + 1}_force_cap"))
+    (force,) = [v for v in _views(rrd).values() if "eq. 3" in v["ViewBlueprint:display_name"][0]]
+    assert "the 1 kg cap" in force["ViewBlueprint:display_name"][0]
+    assert force["ScalarAxis:range"][0][1] < 2.0  # the datasheet's cap would need 2.5 kg
+    assert kind_of_run(out).force_cap_kg == cap_kg  # `twin view` rebuilds it from run.json
 
 
 def test_the_difference_plots_are_the_estimate_minus_the_truth(compress_run):

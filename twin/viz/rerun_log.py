@@ -163,25 +163,23 @@ class _Pending:
 
     def __init__(self, split: Callable[[dict[str, np.ndarray], list[int]], list[Columns]]) -> None:
         self.split = split
-        self.t_ns: list[int] = []
-        self.values: dict[str, list[np.ndarray]] = {}
+        self.rows: list[tuple[int, Mapping[str, np.ndarray]]] = []
 
     def add(self, t_ns: int, values: Mapping[str, np.ndarray]) -> int:
-        """Keep one row (its arrays are kept as given: pass copies); the rows now pending."""
-        self.t_ns.append(t_ns)
-        for name, value in values.items():
-            self.values.setdefault(name, []).append(value)
-        return len(self.t_ns)
+        """Keep one row (its arrays are kept as given: pass copies); the rows now pending. One append, so
+        a Ctrl-C landing here never leaves a row with some of its values (a ragged column Rerun refuses)."""
+        self.rows.append((t_ns, dict(values)))
+        return len(self.rows)
 
     def send(self, rec: rr.RecordingStream) -> None:
         """Send every pending row, one send_columns call an entity, and forget them."""
-        if not self.t_ns:
+        rows, self.rows = self.rows, []
+        if not rows:
             return
-        lengths = [len(v) for v in next(iter(self.values.values()))]
-        stacked = {name: np.concatenate(rows) for name, rows in self.values.items()}
-        t_ns = np.array(self.t_ns, dtype=np.int64).astype("timedelta64[ns]")
+        lengths = [len(next(iter(values.values()))) for _, values in rows]
+        stacked = {name: np.concatenate([values[name] for _, values in rows]) for name in rows[0][1]}
+        t_ns = np.array([t for t, _ in rows], dtype=np.int64).astype("timedelta64[ns]")
         times = rr.TimeColumn(TIMELINE, duration=t_ns)
-        self.t_ns, self.values = [], {}
         for path, archetype, components, row_lengths in self.split(stacked, lengths):
             columns = archetype.columns(**components).partition(row_lengths)
             rec.send_columns(path, indexes=[times], columns=columns)

@@ -1,8 +1,12 @@
 """A run's 3-D scene, pads, contacts and plots, logged in batches (RunRecording sends ROWS_PER_SEND rows
 an entity at a time, the parts that do not change with the first row only), read back row for row."""
 
+import warnings
+from collections.abc import Mapping
+
 import numpy as np
 import pytest
+import rerun as rr
 
 from twin.sim.backend import SimBackend
 from twin.sim.foam import DEFAULT_OBJECT, LIBRARY
@@ -12,6 +16,8 @@ from twin.viz.rerun_log import (
     ROWS_PER_SEND,
     TACTILE_KPA_PER_UNIT,
     RunRecording,
+    _as_is,
+    _Pending,
     read_rrd_entities,
     read_rrd_images,
     read_rrd_meshes,
@@ -106,3 +112,38 @@ def test_pads_are_images_of_filled_cells_in_kpa(logged):
             left_out = np.ones(image.shape, bool)
             left_out[row, col] = False
             assert (image[left_out] == 0).all()
+
+
+class _InterruptedRow(Mapping):
+    """A row whose value is being read when Ctrl-C lands (KeyboardInterrupt raised from inside `add`)."""
+
+    def __getitem__(self, name):
+        raise KeyboardInterrupt
+
+    def __iter__(self):
+        return iter(["scalars"])
+
+    def __len__(self):
+        return 1
+
+
+def test_a_ctrl_c_inside_a_pending_row_leaves_no_ragged_column(tmp_path):
+    """A run interrupted while a row is being kept: the rows before and after it reach the file whole,
+    and Rerun is never handed columns of different lengths (it warns and drops them)."""
+    path = tmp_path / "run.rrd"
+    rec = rr.RecordingStream("barrett_twin", recording_id="interrupted")
+    rec.save(path)
+    pending = _Pending(_as_is("plots/test/value", rr.Scalars))
+    for k in range(3):
+        pending.add(k * 10_000_000, {"scalars": np.array([float(k)])})
+    with pytest.raises(KeyboardInterrupt):
+        pending.add(30_000_000, _InterruptedRow())
+    pending.add(40_000_000, {"scalars": np.array([4.0])})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # Rerun's "All columns must have the same length" is a warning
+        pending.send(rec)
+    rec.flush()
+    rec.disconnect()
+    t, values = read_rrd_scalars(path, "/plots/test/value")
+    np.testing.assert_allclose(t, [0.0, 0.01, 0.02, 0.04])
+    np.testing.assert_allclose(values.ravel(), [0.0, 1.0, 2.0, 4.0])

@@ -70,8 +70,7 @@ NOT_RUN = {
             "4.35 GB of downloads",
         ),
         (
-            "TWIN_LEROBOT_PYTHON=lerobot-full/bin/python .venv/bin/pytest -p no:xdist tests/export "
-            "-m network",
+            "TWIN_LEROBOT_PYTHON=lerobot-full/bin/python .venv/bin/pytest -n 0 tests/export -m network",
             "4.35 GB of downloads",
         ),
         ("SELECT decode(key) AS key, decode(value) AS value", "DuckDB is not a dependency"),

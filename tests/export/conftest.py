@@ -61,7 +61,7 @@ def lerobot_python() -> Path:
     except lerobot_env.BuildError as error:
         failure = str(error)
     pytest.fail(
-        f"{failure}. Without the package registry (offline), set TWIN_LEROBOT_PYTHON to an interpreter "
-        "with lerobot 0.4.4 (docs/api.md, Export), or leave these tests out: -m 'not network'",
+        f"{failure}. Offline, TWIN_LEROBOT_PYTHON may name an interpreter with lerobot 0.4.4 instead "
+        "(docs/api.md, Export), and -m 'not network' leaves these tests out",
         pytrace=False,
     )

@@ -59,11 +59,14 @@ def interpreter(env: Path) -> Path:
 
 
 def lerobot_python() -> Path:
-    """The interpreter of the side environment: $TWIN_LEROBOT_PYTHON, else the cached one, built (once,
-    under a lock) if it is not there. Raises BuildError."""
+    """The interpreter of the side environment: $TWIN_LEROBOT_PYTHON (a path or a command on PATH), else
+    the cached one, built (once, under a lock) if it is not there. Raises BuildError."""
     named = os.environ.get("TWIN_LEROBOT_PYTHON")
     if named:
-        return Path(named)
+        found = shutil.which(named)
+        if found is None:
+            raise BuildError(f"TWIN_LEROBOT_PYTHON names {named!r}: no such interpreter")
+        return Path(found)
     root, name = cache_root(), key()
     env = root / name
     if env.is_dir():  # only a complete build is ever renamed to this name

@@ -6,8 +6,10 @@ calls torchvision for two things only, and this holds those two, copied from tor
 release lerobot 0.4.4 accepts; BSD-3-Clause, Copyright (c) Soumith Chintala 2016) cut to the paths LeRobot
 takes: `transforms.ToTensor` (parquet images -> float CHW in [0, 1]) and, for video datasets decoded with
 the "pyav" backend (torchcodec has no CPU build for torch 2.13.0 either), `set_video_backend` and
-`io.VideoReader`. Nothing else: any other use fails at import, as it should. lerobot's own code is
-unmodified."""
+`io.VideoReader`. Besides those, only names lerobot's modules import on load and the side environment
+never calls (`transforms.functional`, `transforms.v2.Transform`, `transforms.v2.functional`: empty, or
+raising when used); any other use fails. lerobot's own code is unmodified. On the same export, the full
+lerobot install (the real torchvision 0.25) hands out bit-identical arrays (docs/api.md, Export)."""
 
 from . import io, transforms
 

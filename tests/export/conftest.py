@@ -1,5 +1,6 @@
 """The runs the export tests read: two short sim runs recorded by the project (one with the stereo pair),
-and a hand-and-command run written through the recorder with a hardware loop's timing, off the grid."""
+and a hand-and-command run written through the recorder with a hardware loop's timing, off the grid; and
+the interpreter of LeRobot's side environment (tests/export/lerobot_env), built on first use."""
 
 from pathlib import Path
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 
 import twin
+from tests.export import lerobot_env
 from twin.recording import RunWriter
 from twin.rig import command_stream_spec, hand_stream_spec
 
@@ -47,3 +49,19 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     twin.compress(twin.sim_backend("soft_block", seed=3), duration_s=2, out=root / "plain")
     write_off_grid_run(root / "hardware" / "plain")  # the same directory name as the sim run's
     return {"cam": root / "cam", "plain": root / "plain", "off_grid": root / "hardware" / "plain"}
+
+
+@pytest.fixture(scope="session")
+def lerobot_python() -> Path:
+    """An interpreter with lerobot 0.4.4: $TWIN_LEROBOT_PYTHON, else the side environment, built once into
+    the user's cache (tests/export/lerobot_env). A build that fails (no registry, no network) fails the
+    tests that need it, in one line: a skip would let the suite pass without LeRobot having read a thing."""
+    try:
+        return lerobot_env.lerobot_python()
+    except lerobot_env.BuildError as error:
+        failure = str(error)
+    pytest.fail(
+        f"{failure}. Offline, TWIN_LEROBOT_PYTHON may name an interpreter with lerobot 0.4.4 instead "
+        "(docs/api.md, Export), and -m 'not network' leaves these tests out",
+        pytrace=False,
+    )

@@ -1,6 +1,7 @@
 """`twin export --format lerobot`: recorded runs as a LeRobot v3.0 dataset, read back with pyarrow, OpenCV
-and PIL (and, where an interpreter with the `lerobot` package is named, with LeRobot's own code)
-against the runs' own streams; bad input in one line. The parquet tables: test_tables.py."""
+and PIL, and with LeRobot's own code (lerobot 0.4.4, unmodified, in the side environment that
+tests/export/lerobot_env builds), against the runs' own streams; bad input in one line. The parquet
+tables: test_tables.py."""
 
 import json
 import os
@@ -14,13 +15,11 @@ import pytest
 from PIL import Image
 
 import twin
+from tests.export import lerobot_env
 from tests.export.conftest import OFF_GRID_S, write_off_grid_run
 from twin.cli import main
 from twin.export.frames import STATE_NAMES
 
-LEROBOT_PYTHON = os.environ.get("TWIN_LEROBOT_PYTHON")
-"""An interpreter with `lerobot` installed: its pins (torch < 2.11, rerun-sdk < 0.27) conflict with this
-project's, so it lives in an environment of its own (docs/api.md says how one was made)."""
 STATS = ("min", "max", "mean", "std", "count", "q01", "q10", "q50", "q90", "q99")
 """What LeRobot 0.4's recorder keeps per feature, per episode and for the dataset."""
 
@@ -226,63 +225,111 @@ def test_bad_input_is_one_line(argv, message, runs, tmp_path: Path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-LEROBOT_SCRIPT = """
-import json, sys
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
-from lerobot.datasets.dataset_tools import delete_episodes
-from lerobot.datasets.utils import dataset_to_policy_features
-from lerobot.policies.act.configuration_act import ACTConfig
-from lerobot.configs.types import FeatureType
-
-ds = LeRobotDataset('barrett-twin/export', root=sys.argv[1])
-rows = [ds[i] for i in range(len(ds))]
-features = dataset_to_policy_features(ds.meta.features)
-act = ACTConfig(
-    input_features={k: f for k, f in features.items() if f.type is not FeatureType.ACTION},
-    output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
-)
-act.validate_features()
-left = delete_episodes(ds, [0], output_dir=sys.argv[2], repo_id='barrett-twin/left')
-print(json.dumps({'fps': ds.fps, 'episodes': ds.num_episodes, 'task': rows[0]['task'],
-  'state': [r['observation.state'].tolist() for r in rows],
-  'tactile': [r['observation.environment_state'].tolist() for r in rows],
-  'timestamp': [float(r['timestamp']) for r in rows],
-  'frame_index': [int(r['frame_index']) for r in rows],
-  'run_time_s': [float(r['run_time_s']) for r in rows],
-  'episode': [int(r['episode_index']) for r in rows],
-  'act_inputs': sorted(act.input_features),
-  'left_stats': {k: {s: v.tolist() for s, v in st.items()} for k, st in left.meta.stats.items()}}))
-"""
+READ_WITH_LEROBOT = Path(lerobot_env.__file__).parent / "read_export.py"
 
 
-@pytest.mark.skipif(LEROBOT_PYTHON is None, reason="TWIN_LEROBOT_PYTHON names no interpreter with lerobot")
-def test_lerobots_own_dataset_class_reads_the_runs_values(runs, tmp_path: Path):
+def _read_with_lerobot(python: Path, dataset: Path, work: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """What LeRobot's own code makes of `dataset`, run by the side environment's interpreter (read_export.py
+    says what it reads): its summary, and every array it handed out."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_LEROBOT_HOME": str(work / "home")}
+    out = work / "read"
+    argv = [str(python), str(READ_WITH_LEROBOT), str(dataset), str(work), str(out)]
+    result = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    with np.load(out.with_suffix(".npz")) as arrays:
+        return json.loads(out.with_suffix(".json").read_text()), dict(arrays)
+
+
+def _assert_episode_equals_run(got: dict[str, np.ndarray], rows: np.ndarray, run: twin.recording.Run):
+    """LeRobot's frames `rows` hold the run's readings exactly, as float32 (LeRobot's dtype for every float;
+    the counts are integers well inside float32's 24 bits), on LeRobot's clock."""
+    hand, command = run.stream("hand"), run.stream("command")
+    state = np.concatenate([hand["position_counts"], hand["velocity_counts"], hand["strain_counts"]], axis=1)
+    assert np.array_equal(got["observation.state"][rows], state.astype(np.float32))
+    assert np.array_equal(got["action"][rows], command["position_counts"].astype(np.float32))
+    tactile = run.stream("tactile")["counts"].astype(np.float32)
+    assert np.array_equal(got["observation.environment_state"][rows], tactile)
+    assert np.array_equal(got["run_time_s"][rows], hand.t_s.astype(np.float32))
+    frame_index = got["frame_index"][rows]
+    assert np.array_equal(frame_index, np.arange(len(hand)))
+    assert np.array_equal(got["timestamp"][rows], (frame_index / 30).astype(np.float32))
+
+
+@pytest.mark.slow
+@pytest.mark.network
+def test_lerobots_own_loader_reads_a_camera_less_export_as_recorded(runs, tmp_path: Path, lerobot_python):
     out = tmp_path / "ds"
     assert main(["export", str(runs["cam"]), str(runs["plain"]), "--out", str(out), "--no-images"]) == 0
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_LEROBOT_HOME": str(tmp_path / "home")}
-    argv = [LEROBOT_PYTHON, "-c", LEROBOT_SCRIPT, str(out), str(tmp_path / "left")]
-    result = subprocess.run(argv, capture_output=True, text=True, env=env)
-    assert result.returncode == 0, result.stderr[-2000:]
-    got = json.loads(result.stdout.splitlines()[-1])
-    assert got["fps"] == 30 and got["episodes"] == 2 and got["task"].startswith("compress: ")
-    assert np.array_equal(
-        np.float32(got["timestamp"]), (np.array(got["frame_index"]) / 30).astype(np.float32)
-    )
-    # ACT takes the taxels as its environment state: no camera needed
-    assert got["act_inputs"] == ["observation.environment_state", "observation.state"]
-    episode = np.array(got["episode"])
+    summary, got = _read_with_lerobot(lerobot_python, out, tmp_path)
+    assert summary["fps"] == 30 and summary["episodes"] == 2 and summary["image_keys"] == []
+    assert all(task.startswith("compress: ") for task in summary["tasks"])
+    episode = got["episode_index"]
+    assert np.array_equal(got["index"], np.arange(len(episode)))
     for index, name in enumerate(("cam", "plain")):
-        run = twin.open_run(runs[name])
-        state = np.array(got["state"])[episode == index]
-        assert np.array_equal(state[:, :4], run.stream("hand")["position_counts"])
-        assert np.array_equal(state[:, 8:], run.stream("hand")["strain_counts"])
-        assert np.array_equal(np.array(got["tactile"])[episode == index], run.stream("tactile")["counts"])
-        # stored as float64; LeRobot's loader hands every float out as torch's default, float32
-        assert np.array_equal(
-            np.float32(got["run_time_s"])[episode == index], np.float32(run.stream("hand").t_s)
-        )
+        _assert_episode_equals_run(got, episode == index, twin.open_run(runs[name]))
+    # delta_timestamps: the state one frame back, the action one frame ahead, never across an episode's
+    # ends (LeRobot repeats the edge frame there and flags it as padding)
+    state, action = got["observation.state"], got["action"]
+    first = np.r_[True, episode[1:] != episode[:-1]]
+    last = np.r_[episode[1:] != episode[:-1], True]
+    back, ahead = np.arange(len(episode)) - ~first, np.arange(len(episode)) + ~last
+    assert np.array_equal(got["delta/observation.state"][:, 0], state[back])
+    assert np.array_equal(got["delta/observation.state"][:, 1], state)
+    assert np.array_equal(got["delta/observation.state_is_pad"][:, 0], first)
+    assert np.array_equal(got["delta/action"][:, 1], action[ahead])
+    assert np.array_equal(got["delta/action_is_pad"][:, 1], last)
+    # ACT takes the taxels as its environment state: no camera needed
+    assert summary["act_inputs"] == ["observation.environment_state", "observation.state"]
     # LeRobot's delete_episodes re-aggregates the stats from meta/episodes: those of the episode left
-    left = got["left_stats"]["observation.state"]
-    plain = _episode_values(twin.open_run(runs["plain"]))["observation.state"]
-    assert left["count"] == [len(plain)] and np.allclose(left["mean"], plain.mean(axis=0))
-    assert np.allclose(left["q99"], np.quantile(plain, 0.99, axis=0, method="inverted_cdf"))
+    assert summary["left_episodes"] == 1
+    plain = twin.open_run(runs["plain"])
+    _assert_episode_equals_run(
+        {k[5:]: v for k, v in got.items() if k.startswith("left/")}, slice(None), plain
+    )
+    left = summary["left_stats"]
+    assert {"observation.state", "action", "observation.environment_state"} <= set(left)
+    values = _episode_values(plain)
+    for feature in ("observation.state", "observation.environment_state"):
+        stats = left[feature]
+        assert stats["count"] == [len(values[feature])] and np.allclose(
+            stats["mean"], values[feature].mean(axis=0)
+        )
+        q99 = np.quantile(values[feature], 0.99, axis=0, method="inverted_cdf")
+        assert np.allclose(stats["q99"], q99)
+
+
+@pytest.mark.slow
+@pytest.mark.network
+def test_lerobots_own_loader_reads_the_camera_frames_and_decodes_its_own_video_conversion(
+    runs, tmp_path: Path, lerobot_python
+):
+    out = tmp_path / "ds"
+    assert main(["export", str(runs["cam"]), "--out", str(out)]) == 0
+    summary, got = _read_with_lerobot(lerobot_python, out, tmp_path)
+    cameras = ["observation.images.left", "observation.images.right"]
+    assert summary["image_keys"] == summary["video_keys"] == cameras
+    run = twin.open_run(runs["cam"])
+    _assert_episode_equals_run(got, slice(None), run)
+    stereo = run.stream("stereo")
+    for side, key in zip(("left", "right"), cameras, strict=True):
+        # LeRobot's frames: the recorded JPEGs, decoded by PIL as RGB, channels first, in [0, 1]
+        rgb = np.stack([np.asarray(Image.open(_jpeg(j)).convert("RGB")) for j in stereo[f"{side}_jpeg"]])
+        frames = rgb.transpose(0, 3, 1, 2).astype(np.float32) / 255
+        assert np.array_equal(got[key], frames)
+        # LeRobot's image-to-video conversion (AV1 at its default quality), read back by LeRobot's decoder,
+        # which refuses a frame more than 1e-4 s off its timestamp: every frame decodes, each at its own
+        # instant (nearer its own source frame than the frames either side, which a one-frame shift reverses)
+        video = got[f"video/{key}"]
+        assert video.shape == frames.shape
+        own = np.abs(video - frames).mean(axis=(1, 2, 3))
+        assert own.max() < 4 / 255  # the codec's loss: a few grey levels in 255
+        assert own.mean() < 0.5 * np.abs(video[1:] - frames[:-1]).mean()
+        assert own.mean() < 0.5 * np.abs(video[:-1] - frames[1:]).mean()
+    video = {k[6:]: v for k, v in got.items() if k.startswith("video/")}
+    _assert_episode_equals_run(video, slice(None), run)  # the other features come through unchanged
+    # ACT with cameras takes them beside the state and the taxels, from the image and the video dataset
+    assert (
+        summary["act_inputs"]
+        == summary["video_act_inputs"]
+        == sorted(["observation.environment_state", "observation.state", *cameras])
+    )

@@ -2,14 +2,15 @@
 
 Why: lerobot 0.4.4's dataset code imports torchvision, and the only torchvision wheel on the registry for
 the project's torch 2.13.0 (CPU) is a CUDA build that cannot import against it. LeRobot's dataset loader
-calls torchvision for two things only, and this holds those two, copied from torchvision 0.25.0 (the last
-release lerobot 0.4.4 accepts; BSD-3-Clause, Copyright (c) Soumith Chintala 2016) cut to the paths LeRobot
-takes: `transforms.ToTensor` (parquet images -> float CHW in [0, 1]) and, for video datasets decoded with
-the "pyav" backend (torchcodec has no CPU build for torch 2.13.0 either), `set_video_backend` and
-`io.VideoReader`. Besides those, only names lerobot's modules import on load and the side environment
-never calls (`transforms.functional`, `transforms.v2.Transform`, `transforms.v2.functional`: empty, or
-raising when used); any other use fails. lerobot's own code is unmodified. On the same export, the full
-lerobot install (the real torchvision 0.25) hands out bit-identical arrays (docs/api.md, Export)."""
+calls torchvision for two things only, and this holds those two, written here to the behaviour torchvision
+0.25.0 (the last release lerobot 0.4.4 accepts) documents, for the calls LeRobot makes: `transforms.ToTensor`
+(parquet images -> float CHW in [0, 1]) and, for video datasets decoded with the "pyav" backend (torchcodec
+has no CPU build for torch 2.13.0 either), `set_video_backend` and `io.VideoReader`. Besides those, only
+names lerobot's modules import on load and the side environment never calls (`transforms.functional`,
+`transforms.v2.Transform`, `transforms.v2.functional`: empty, or raising when used); any other use fails.
+lerobot's own code is unmodified. The full lerobot install (the real torchvision 0.25) was checked by hand
+to hand out bit-identical arrays on the same export, against a first version of this stand-in doing the
+same conversions (docs/api.md, Export)."""
 
 from . import io, transforms
 

@@ -109,6 +109,21 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
                 process.join(TERMINATE_GRACE_S)
 
 
+_MAIN_GUARD_HINT = (
+    "; from a script, start twin's worker processes (estimate_modulus, fit_run, ...) under "
+    '`if __name__ == "__main__":`: each spawned worker runs the script\'s top level again'
+)
+
+
+def _failed_exit_status(pool: ProcessPoolExecutor) -> int | None:
+    """The exit status of a pool worker that ended by an error of its own (a positive status: a Python
+    exception as it started, e.g. a script without a main guard), or None where none did (a kill)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        if process.exitcode is not None and process.exitcode > 0:
+            return int(process.exitcode)
+    return None
+
+
 @contextlib.contextmanager
 def worker_pool(
     workers: int, initializer: Callable[..., None] | None = None, initargs: tuple[Any, ...] = ()
@@ -127,7 +142,13 @@ def worker_pool(
     try:
         yield pool
     except BrokenProcessPool as exc:  # a worker killed (the OOM killer, `kill -9`): one line, not a traceback
+        failed = _failed_exit_status(pool)
         stop_workers(pool)
+        if failed is not None:  # an error at the worker's start, printed by it above: not a kill
+            raise WorkerLostError(
+                f"a worker process failed as it started (exit status {failed}; its error is printed above)"
+                + _MAIN_GUARD_HINT
+            ) from exc
         raise WorkerLostError(
             "a worker process ended abruptly (killed, or out of memory): run the command again, "
             "with fewer --workers if memory is short"

@@ -32,3 +32,34 @@ def test_a_child_killed_mid_work_is_a_twin_error_naming_it():
     with pytest.raises(WorkerLostError, match="_die ended abruptly") as caught:
         run_killable(_die)
     assert isinstance(caught.value, TwinError)  # the CLI prints it as one line
+
+
+UNGUARDED_SCRIPT = """
+from twin.interface.errors import WorkerLostError
+from twin.processes import worker_pool
+
+try:
+    with worker_pool(2) as pool:
+        print(list(pool.map(abs, [-1, -2])))
+except WorkerLostError as error:
+    print(f"lost: {error}")
+"""
+
+
+def test_a_script_without_a_main_guard_is_told_so_not_that_its_worker_was_killed(tmp_path):
+    """Python's spawn runs a script's top level again in each worker: without `if __name__ ==
+    "__main__":` the worker fails as it starts, which is not a kill or a lack of memory."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(UNGUARDED_SCRIPT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    (line,) = [x for x in done.stdout.splitlines() if x.startswith("lost: ")]
+    assert "failed as it started (exit status 1" in line and 'if __name__ == "__main__":' in line
+    assert "out of memory" not in line
+    guarded = tmp_path / "guarded.py"
+    body = "".join(f"    {x}\n" for x in UNGUARDED_SCRIPT.strip().splitlines())
+    guarded.write_text(f'if __name__ == "__main__":\n{body}')
+    done = subprocess.run([sys.executable, str(guarded)], capture_output=True, text=True, timeout=120)
+    assert done.stdout.strip() == "[1, 2]", done.stderr

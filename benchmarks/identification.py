@@ -171,13 +171,14 @@ def held(run_dir: str) -> bool:
     return bool(len(drive)) and bool((drive < HELD_BELOW_COUNTS).all())
 
 
-def estimate(run_dir: str, description=None) -> dict:
-    """estimate_modulus's figures for a row (or why there is none)."""
+def estimate(run_dir: str, description=None, tolerances=None, workers: int = 2) -> dict:
+    """estimate_modulus's figures for a row (or why there is none); `tolerances` as `twin identify`'s
+    (default: twin.sim.modulus.Tolerances())."""
     from twin.sim.modulus import EstimateError, ImpreciseEstimateError, estimate_modulus
 
     started = time.perf_counter()
     try:
-        e = estimate_modulus(run_dir, description=description, workers=2)
+        e = estimate_modulus(run_dir, description=description, workers=workers, tolerances=tolerances)
     except ImpreciseEstimateError as exc:  # the interval alone: scored for coverage, and what it hid
         return {
             "refused": str(exc).removeprefix(f"{run_dir}: "),

@@ -60,11 +60,19 @@ def make_camera_run(case: dict, out_dir: Path) -> Path:
 
     foam = hidden._foam(case)
     run_dir = out_dir / case_name(case)
-    if not (run_dir / "run.json").exists():
+    if _status(run_dir) != "complete":  # none yet, or one that failed (made again)
         shutil.rmtree(run_dir, ignore_errors=True)
         backend = api.sim_backend(foam, seed=case["seed"], cameras=True, camera_placements=PLACEMENTS)
         run_compress(backend, run_dir, duration_s=hidden.DURATION_S, object_name=foam.name, viewer=False)
     return run_dir
+
+
+def _status(run_dir: Path) -> str | None:
+    """run.json's status (None where there is none)."""
+    try:
+        return json.loads((run_dir / "run.json").read_text()).get("status")
+    except (OSError, ValueError):
+        return None
 
 
 def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:

@@ -303,7 +303,8 @@ def _headline(s: dict) -> str:
         f"**cameras, {s['n']} hidden runs: a number for {_pct(s['numbers'], s['n'])} (target >= 70 %); "
         f"over the numbers median |E error| {100 * s['median']:.1f} %, max {100 * s['max']:.1f} % "
         f"(targets <= 5 %, <= 15 %); the E interval holds the truth on {_pct(s['covered'], s['n'])} of "
-        "all runs (target >= 90 %; a run refused without an interval counts as a miss). "
+        "all runs (target >= 90 %; a run refused without an interval counts as a miss), on "
+        f"{s['covered']} of the {s['with_interval']} runs that gave an interval. "
         f"nu read on {s['nu_n']} of {s['n']}: median |nu error| {s['nu_median']:.3f}, "
         f"max {s['nu_max']:.3f} (the prior's mean, 0.275, on the same runs: median "
         f"{s['nu_prior_median']:.3f}; "
@@ -327,15 +328,21 @@ def _pct(k: int, n: int) -> str:
 def to_markdown(results: dict) -> str:
     """The BENCHMARKS.md section."""
     per_shape = results["per_shape"]
-    cams = [r for r in results["methods"].get("cameras", []) if r["held"]]
+    drawn = results["methods"].get("cameras", [])
+    cams = [r for r in drawn if r["held"]]
     planned = per_shape * len(hidden.SHAPES)
-    complete = len(cams) >= planned
+    short = {  # shapes under per_shape: their CANDIDATES draws ran out, or the clock stopped the draw
+        shape: (sum(r["held"] for r in drawn if r["shape"] == shape), sum(r["shape"] == shape for r in drawn))
+        for shape in hidden.SHAPES
+    }
+    short = {k: v for k, v in short.items() if v[0] < per_shape}
+    complete = all(tried >= hidden.CANDIDATES for _, tried in short.values())
     s = summary(cams)
     dropped = [r for r in results["methods"].get("cameras", []) if not r["held"]]
     lines = [
         "## Identification with two stereo pairs (`twin identify --poisson-from-cameras`, hidden foams)",
         "",
-        f"{'' if complete else _partial(len(cams), planned)}"
+        f"{_partial(len(cams), planned) if not complete else _ran_out(short, per_shape) if short else ''}"
         f"benchmarks/identification.py's hidden draw on seed {results['draw_seed']} (noise seeds from "
         f"{FIRST_NOISE_SEED + 1}; nothing looked at on it before; `benchmarks/identification_cameras.py`): "
         f"the first {per_shape} runs per shape the hand held (block, cylinder, sphere, an egg and a bumpy "
@@ -424,6 +431,11 @@ def _partial(done: int, planned: int) -> str:
         f"**Partial: {done} of {planned} cases** (the draw was stopped by the clock; shapes are taken in "
         "turn, so each shape has as many cases as the others, or one fewer). "
     )
+
+
+def _ran_out(short: dict, per_shape: int) -> str:
+    said = ", ".join(f"the {k}'s {n} draws gave {held} the hand held" for k, (held, n) in short.items())
+    return f"Complete, with fewer than {per_shape} runs where a shape's draws ran out ({said}). "
 
 
 def _e_cells(r: dict) -> str:

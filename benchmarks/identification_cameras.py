@@ -258,9 +258,16 @@ def run(
 
 def results_from_rows(path: Path, draw_seed: int, per_shape: int) -> dict:
     """The results as `run` returns them, from a runs directory's rows file (in the order written)."""
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows: dict = {}  # by (case, method), in the order first written; a later row replaces an earlier one
+    for line in path.read_text().splitlines():
+        if line.strip():
+            r = json.loads(line)
+            earlier = rows.get((r["case"], r["method"]))
+            if earlier is not None and "crashed" in earlier:  # made again after the crash was fixed
+                r["rerun_after"] = earlier["crashed"]
+            rows[(r["case"], r["method"])] = r
     methods: dict = {}
-    for r in rows:
+    for r in rows.values():
         methods.setdefault(r["method"], []).append(r)
     return {"draw_seed": draw_seed, "per_shape": per_shape, "methods": methods}
 
@@ -280,6 +287,8 @@ def summary(rows: list[dict]) -> dict:
         "max": float(np.max(errors)),
         "covered": sum(bool(r.get("covered")) for r in rows),
         "with_interval": len(with_interval),
+        "crashed": sum("crashed" in r for r in rows),
+        "rerun": sum("rerun_after" in r for r in rows),
         "numbers_covered": sum(bool(r["covered"]) for r in numbers),
         "nu_n": len(nu),
         "nu_median": float(np.median([abs(r["nu_error"]) for r in nu])) if nu else math.nan,
@@ -313,6 +322,8 @@ def _headline(s: dict) -> str:
         f"(median half-width {s['nu_half']:.3f}); it narrowed the Poisson ratios the modulus simulations "
         f"draw on {s['narrowed']} of {s['n']}.** Median wall time per case (the run, nu's 12 "
         f"simulations, the estimate) {s['wall_median']:.0f} s."
+        + (f" {s['crashed']} crashed (scored as refused without an interval)." if s["crashed"] else "")
+        + (f" {s['rerun']} estimated again after a crash was fixed (below)." if s["rerun"] else "")
     )
 
 
@@ -414,7 +425,7 @@ def to_markdown(results: dict) -> str:
         lines.append(
             f"| {r['shape']} | {size} | {place} | {r['poisson']:.3f} | {nu} | {drawn} "
             f"| {r['young_pa'] / 1e3:.1f} | {_e_cells(r)} | {_e_cells(t) if t else '| |'} "
-            f"| {r['case_s']:.0f} s |"
+            f"| {r['case_s']:.0f} s{_rerun(r)} |"
         )
     if dropped:
         lines += [
@@ -436,6 +447,12 @@ def _partial(done: int, planned: int) -> str:
 def _ran_out(short: dict, per_shape: int) -> str:
     said = ", ".join(f"the {k}'s {n} draws gave {held} the hand held" for k, (held, n) in short.items())
     return f"Complete, with fewer than {per_shape} runs where a shape's draws ran out ({said}). "
+
+
+def _rerun(r: dict) -> str:
+    if "rerun_after" not in r:
+        return ""
+    return f" (estimated again: the first crashed, {r['rerun_after']}; fixed since)"
 
 
 def _e_cells(r: dict) -> str:

@@ -373,7 +373,13 @@ def to_markdown(results: dict) -> str:
     if same:
         a, b = summary(same), summary([tol[r["case"]] for r in same])
         lines += [
-            f"The two methods on the same {len(same)} runs:",
+            f"The two methods on the same {len(same)} runs"
+            + (
+                f" (the first {len(same)} held, in the draw's order; the tolerated estimate was not run on "
+                f"the other {len(cams) - len(same)} for time):"
+                if len(same) < len(cams)
+                else ":"
+            ),
             "",
             "| method | numbers | intervals alone | refused | median abs error | max abs error "
             "| E covered (all runs) |",

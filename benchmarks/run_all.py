@@ -32,6 +32,7 @@ SECTIONS = (
     "stereo_run",
     "recording_size",
     "identification",
+    "identification_cameras",
     "interval_calibration",
     "identifiability",
     "nu_from_cameras",

@@ -169,6 +169,8 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
     if not _is_preset(foam):
         return Scale(1.0, "uncalibrated", {"why": "a discretization other than its preset's"})
     entry = lookup(foam)
+    if entry is not None and entry.get("uncalibrated"):  # a mesh's node the bench could not hold, at its nu
+        return Scale(1.0, "uncalibrated", _summary(entry) | {"why": entry["uncalibrated"]})
     if entry is not None:
         return _trusted(Scale(float(entry["k"]), "calibrated", _summary(entry)), entry["residual"])
     if foam.shape != "mesh":

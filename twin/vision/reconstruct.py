@@ -342,6 +342,11 @@ def disparity_around(
     reach = max(abs(matcher.getMinDisparity()), abs(matcher.getMinDisparity() + matcher.getNumDisparities()))
     y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, height)
     x0, x1 = max(cols[0] - reach - pad, 0), min(cols[-1] + reach + pad + 1, width)
+    if x1 - x0 < (least := matcher.getNumDisparities() + matcher.getBlockSize()):
+        # OpenCV's matchers need the view wider than their search (SGBM: a negative allocation, or a
+        # segfault, at <= numDisparities columns): a mask at the frame's edge widens inwards
+        x1 = min(x0 + least, width)
+        x0 = max(x1 - least, 0)
     disparity[y0:y1, x0:x1] = compute_disparity(left_rect[y0:y1, x0:x1], right_rect[y0:y1, x0:x1], matcher)
     return disparity
 

@@ -158,4 +158,7 @@ def test_an_object_that_topples_in_the_bench_is_left_uncalibrated_with_the_reaso
     lines.clear()
     assert calibration.scale_of(foam, progress=lines.append).detail["why"] == scale.detail["why"]
     assert lines == []  # read back, not tried again
+    at_node = foam.with_overrides(poisson=calibration.POISSON_NODES[0])  # as twin.sim.poisson reads nu
+    assert calibration.scale_of(at_node).detail["why"] == scale.detail["why"]  # the entry itself: k = 1
     build_model(foam)  # and the scene composes
+    build_model(at_node)

@@ -280,3 +280,28 @@ def test_the_hand_region_keeps_the_grasp_and_drops_the_room():
         ]
     )
     np.testing.assert_array_equal(region.contains(points), [True, True, False, False, False])
+
+
+def test_a_mask_at_the_frames_edge_is_matched_in_a_crop_wider_than_the_search():
+    """An object cut by the frame's edge: the crop around it is widened inwards to more columns than
+    the matcher searches (OpenCV's SGBM raised a negative allocation, or crashed, on a narrower one),
+    and reads what the full frame reads: a textured plane 6 px apart, searched as a toed-in rig does."""
+    import cv2
+
+    from twin.vision.reconstruct import compute_disparity, disparity_around, make_sgbm_matcher
+
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.integers(0, 255, (H, W + 6)).astype(np.uint8), (3, 3), 0)
+    left, right = texture[:, 6:], texture[:, :-6]  # left[:, x] is right[:, x + 6]: disparity -6 px
+    matcher = make_sgbm_matcher(64, 3, -32)  # a converged rig's search: -32 to +31 px
+    full = compute_disparity(left, right, matcher)
+    for first_col, last_col in ((W - 16, W), (0, 12), (150, 166)):  # two old crops under 64 columns
+        mask = np.zeros((H, W), dtype=bool)
+        mask[100:140, first_col:last_col] = True
+
+        cropped = disparity_around(left, right, matcher, mask)
+
+        assert np.array_equal(np.isfinite(cropped[mask]), np.isfinite(full[mask]))
+        assert np.allclose(cropped[mask], full[mask], atol=0.5, equal_nan=True)
+        assert np.isnan(cropped[:90]).all() and np.isnan(cropped[150:]).all()  # rows far from it: none
+    assert np.nanmedian(cropped[mask]) == pytest.approx(-6.0, abs=0.5)  # the last mask lies inside

@@ -182,8 +182,8 @@ DEVICE_RANGES = {
     "/plots/hand/position_counts": (0.0, float(FINGER_MAX_COUNTS)),
     "/plots/command/position_counts": (0.0, float(FINGER_MAX_COUNTS)),
 }
-"""y ranges of the device's own: the drive's 0-17,800 counts (the fingertip force's runs to past the run's
-own cap: device_range). A view of other entities spans the run's recorded data (RunKind.y_ranges)."""
+"""y ranges of the device's own: the drive's 0-17,800 counts (the fingertip force's, to past the run's own
+cap, is device_range's). A view of other entities spans the run's recorded data (RunKind.y_ranges)."""
 FORCE_PATHS = ("/plots/hand/force_kg", f"/{FORCE_CAP_ENTITY}")
 
 

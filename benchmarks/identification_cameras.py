@@ -80,38 +80,30 @@ def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:
     pairs, the Poisson range drawn cut to its 95 % interval, estimate_modulus's figures."""
     from dataclasses import replace
 
-    from twin.recording import open_run
-    from twin.sim.fit import foam_of_run
-    from twin.sim.modulus import Tolerances, describe
-    from twin.sim.poisson import drawn_poisson_range, read_run
-    from twin.vision.strain_record import opposite_pair_streams
+    from twin.sim.modulus import Tolerances
+    from twin.sim.poisson import poisson_for_modulus
 
     started = time.perf_counter()
-    tolerances = Tolerances()
+    tolerated = Tolerances()
+    said = poisson_for_modulus(run_dir, None, tolerated.poisson, narrow=True)
     out: dict = {}
-    run = open_run(run_dir)
-    if opposite_pair_streams(run) is None:
-        out["nu_failed"] = "the run has no two opposite stereo pairs"
+    if said.read is None:  # the CLI then draws the tolerated range, with a note
+        out["nu_failed"] = said.failed
     else:
-        try:
-            read = read_run(run_dir, describe(foam_of_run(run)))
-        except ValueError as exc:  # the CLI then draws the tolerated range, with a note
-            out["nu_failed"] = str(exc)
-        else:
-            (low, high), note = drawn_poisson_range(tolerances.poisson, read.poisson_95)
-            tolerances = replace(tolerances, poisson=(low, high))
-            out |= {
-                "nu_read": read.poisson,
-                "nu_ci95": list(read.poisson_95),
-                "young_from_strains_pa": read.young_pa,
-                "young_from_strains_ci95_pa": list(read.young_95_pa),
-                "placement_read_m": list(read.placement_m),
-                "strains": list(read.strains),
-            }
-            if note:
-                out["nu_note"] = note
-    out["drawn_poisson"] = list(tolerances.poisson)
+        read = said.read
+        out |= {
+            "nu_read": read.poisson,
+            "nu_ci95": list(read.poisson_95),
+            "young_from_strains_pa": read.young_pa,
+            "young_from_strains_ci95_pa": list(read.young_95_pa),
+            "placement_read_m": list(read.placement_m),
+            "strains": list(read.strains),
+        }
+        if said.note:
+            out["nu_note"] = said.note
+    out["drawn_poisson"] = list(said.drawn)
     out["nu_wall_s"] = time.perf_counter() - started
+    tolerances = replace(tolerated, poisson=said.drawn)
     return out | hidden.estimate(str(run_dir), None, tolerances=tolerances, workers=workers)
 
 

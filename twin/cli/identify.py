@@ -190,8 +190,7 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
     pairs: the tolerated range, and what the cameras would add."""
     from dataclasses import replace
 
-    from twin.recording import open_run
-    from twin.vision.strain_record import opposite_pair_streams
+    from twin.sim.poisson import NO_PAIRS, poisson_for_modulus
 
     tolerated = args.tolerances.poisson
     unmeasured = {
@@ -199,22 +198,21 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
         "source": "the tolerated range (--poisson), drawn in every simulation: not measured",
         "cameras_would_add": CAMERAS_WOULD_ADD,
     }
-    run = open_run(args.run_dir)
-    if opposite_pair_streams(run) is None:
+    said = poisson_for_modulus(
+        args.run_dir,
+        description,
+        tolerated,
+        narrow=args.poisson_from_cameras,
+        announce=None if args.no_progress else lambda message: print(message, file=sys.stderr),
+    )
+    if said.read is None:
+        if said.failed != NO_PAIRS:
+            notes.append(
+                f"the two stereo pairs could not read the Poisson ratio ({said.failed}): the tolerated range "
+                "is drawn"
+            )
         return unmeasured
-    from twin.sim.fit import foam_of_run
-    from twin.sim.modulus import describe
-    from twin.sim.poisson import drawn_poisson_range, read_run
-
-    if not args.no_progress:
-        print("reading the Poisson ratio from the two stereo pairs (12 simulations)...", file=sys.stderr)
-    try:
-        read = read_run(args.run_dir, describe(description if description is not None else foam_of_run(run)))
-    except ValueError as exc:
-        notes.append(
-            f"the two stereo pairs could not read the Poisson ratio ({exc}): the tolerated range is drawn"
-        )
-        return unmeasured
+    read = said.read
     if not args.poisson_from_cameras:  # reported, not drawn (opt-in: see the docstring)
         notes.append(
             f"the two stereo pairs read nu {read.poisson:.3f} ({read.poisson_95[0]:.3f}-"
@@ -222,11 +220,10 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
             f"{tolerated[0]:g}-{tolerated[1]:g} (--poisson-from-cameras draws within the reading)"
         )
         return read.to_json() | {"drawn_range": list(tolerated), "narrowed": False}
-    (low, high), note = drawn_poisson_range(tolerated, read.poisson_95)
-    if note:
-        notes.append(note)
-    args.tolerances = replace(args.tolerances, poisson=(low, high))
-    return read.to_json() | {"drawn_range": [low, high], "narrowed": True}
+    if said.note:
+        notes.append(said.note)
+    args.tolerances = replace(args.tolerances, poisson=said.drawn)
+    return read.to_json() | {"drawn_range": list(said.drawn), "narrowed": True}
 
 
 def _estimate_modulus(args: argparse.Namespace, description):  # noqa: ANN001

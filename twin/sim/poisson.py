@@ -10,7 +10,7 @@ Poisson ratios, and the run's strains are read against the grid (twin.vision.lat
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -22,7 +22,13 @@ from twin.sim.foam import FoamParams
 from twin.sim.scene import PALM_SURFACE_Z_M
 from twin.vision.fusion import VISION
 from twin.vision.lateral_strain import StrainReading, read_modulus_and_poisson
-from twin.vision.strain_record import TROUGHS, StrainObservation, observation, observe_run
+from twin.vision.strain_record import (
+    TROUGHS,
+    StrainObservation,
+    observation,
+    observe_run,
+    opposite_pair_streams,
+)
 
 PAIRS = ("lateral", "opposite")
 """The rig: the paper's pair and its mirror through the palm axis (the two gaps along the palm's x)."""
@@ -241,3 +247,48 @@ def drawn_poisson_range(
         f"the cameras' nu {measured_95[0]:.3f}-{measured_95[1]:.3f} lies outside the tolerated "
         f"{tolerated[0]:g}-{tolerated[1]:g}: the tolerated range is drawn"
     )
+
+
+NO_PAIRS = "the run has no two opposite stereo pairs"
+
+
+@dataclass(frozen=True)
+class PoissonForModulus:
+    """What the two pairs give an identification: their read (None where there is none, and `failed` says
+    why), the Poisson ratios the modulus simulations draw, and a note where read and tolerance disagree."""
+
+    read: PoissonRead | None
+    failed: str | None
+    drawn: tuple[float, float]
+    note: str | None = None
+
+
+def poisson_for_modulus(
+    run_dir: Path | str,
+    description: FoamParams | None,
+    tolerated: tuple[float, float],
+    *,
+    narrow: bool,
+    announce: Callable[[str], None] | None = None,
+) -> PoissonForModulus:
+    """`twin identify`'s use of the cameras, in one place for the CLI and benchmarks/identification_cameras:
+    nu read from the run's two opposite pairs (read_run, on the object `description` or the run's own
+    record of it); with `narrow` the drawn range is the tolerated one cut to the read's 95 % interval
+    (drawn_poisson_range), else the tolerated range. `announce(message)` just before the read's 12
+    simulations."""
+    from twin.sim.fit import foam_of_run
+    from twin.sim.modulus import describe
+
+    run = open_run(run_dir)
+    if opposite_pair_streams(run) is None:
+        return PoissonForModulus(None, NO_PAIRS, tolerated)
+    if announce is not None:
+        announce("reading the Poisson ratio from the two stereo pairs (12 simulations)...")
+    try:
+        read = read_run(run_dir, describe(description if description is not None else foam_of_run(run)))
+    except ValueError as exc:
+        return PoissonForModulus(None, str(exc), tolerated)
+    if not narrow:
+        return PoissonForModulus(read, None, tolerated)
+    drawn, note = drawn_poisson_range(tolerated, read.poisson_95)
+    return PoissonForModulus(read, None, drawn, note)

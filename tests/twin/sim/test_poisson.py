@@ -8,7 +8,6 @@ import pytest
 from twin import api
 from twin.sim import poisson
 from twin.sim.foam import LIBRARY
-from twin.sim.modulus import describe
 
 
 @pytest.mark.slow
@@ -30,17 +29,24 @@ def test_the_twins_observation_matches_a_recorded_two_pair_run(tmp_path: Path):
 
 @pytest.mark.slow
 def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(tmp_path: Path):
-    """`twin identify`'s read of nu (twin.sim.poisson.read_run) on a recorded two-pair run of the fast
-    block at nu 0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval holds the truth and is under
-    +-0.06 wide (the prior's range is +-0.075); the placement is read within 0.5 mm in x."""
+    """`twin identify`'s read of nu (twin.sim.poisson.poisson_for_modulus, read_run) on a recorded
+    two-pair run of the fast block at nu 0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval
+    holds the truth and is under +-0.06 wide (the prior's range is +-0.075); the placement is read within
+    0.5 mm in x."""
     truth = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
     backend = api.sim_backend(truth, seed=5, cameras=True, camera_placements=["lateral", "opposite"])
     api.compress(backend, duration_s=poisson.DURATION_S, out=tmp_path / "run")
-    read = poisson.read_run(tmp_path / "run", describe(LIBRARY["block"]))
+    said = poisson.poisson_for_modulus(tmp_path / "run", LIBRARY["block"], (0.2, 0.35), narrow=True)
+    read = said.read
+    assert read is not None and said.failed is None, said
     low, high = read.poisson_95
     assert low < 0.3 < high and high - low < 0.12, read
     assert read.placement_m[0] == pytest.approx(0.001, abs=5e-4), read
     assert read.young_95_pa[0] < read.young_pa < read.young_95_pa[1] and read.simulations == 12
+    # What `twin identify --poisson-from-cameras` and the camera benchmark then draw: the tolerance cut
+    # to the read's interval, the same function for both.
+    assert said.drawn == poisson.drawn_poisson_range((0.2, 0.35), read.poisson_95)[0]
+    assert 0.2 <= said.drawn[0] < 0.3 < said.drawn[1] <= 0.35
 
 
 def test_the_cameras_interval_narrows_the_tolerated_poisson_range():

@@ -76,8 +76,9 @@ def _status(run_dir: Path) -> str | None:
 
 
 def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:
-    """`twin identify --poisson-from-cameras` on a run (its _poisson, then the modulus): nu from the two
-    pairs, the Poisson range drawn cut to its 95 % interval, estimate_modulus's figures."""
+    """`twin identify --poisson-from-cameras` on a run, through the function its _poisson calls
+    (twin.sim.poisson.poisson_for_modulus), then the modulus: nu from the two pairs, the Poisson range
+    drawn cut to its 95 % interval, estimate_modulus's figures."""
     from dataclasses import replace
 
     from twin.sim.modulus import Tolerances

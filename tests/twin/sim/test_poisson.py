@@ -5,18 +5,32 @@ from pathlib import Path
 
 import pytest
 
+from tests.once import made_once
 from twin import api
 from twin.sim import poisson
 from twin.sim.foam import LIBRARY
 
+TRUTH = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
+"""The fast block at E 35 kPa, nu 0.3, placed 1 mm / -2 mm off centre."""
+SEED = 11
+
+
+@pytest.fixture(scope="session")
+def two_pair_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A recorded two-pair compress run of TRUTH (its 30 fps stereo is the costly part: made once for
+    both xdist workers, tests/once.py)."""
+
+    def record(out: Path) -> None:
+        backend = api.sim_backend(TRUTH, seed=SEED, cameras=True, camera_placements="lateral,opposite")
+        api.compress(backend, duration_s=poisson.DURATION_S, out=out)
+
+    return made_once(tmp_path_factory, "poisson-two-pair-run", record)
+
 
 @pytest.mark.slow
-def test_the_twins_observation_matches_a_recorded_two_pair_run(tmp_path: Path):
-    foam = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
-    sparse = poisson.observe(foam, seed=11)
-    backend = api.sim_backend(foam, seed=11, cameras=True, camera_placements="lateral,opposite")
-    api.compress(backend, duration_s=poisson.DURATION_S, out=tmp_path / "run")
-    recorded = poisson.observe_recorded(tmp_path / "run", foam)
+def test_the_twins_observation_matches_a_recorded_two_pair_run(two_pair_run: Path):
+    sparse = poisson.observe(TRUTH, seed=SEED)
+    recorded = poisson.observe_recorded(two_pair_run, TRUTH)
     assert len(recorded.width_m) == len(sparse.width_m) == 2
     (ex_r, ez_r), (ex_s, ez_s) = recorded.strains(), sparse.strains()
     # The squeeze's strains (eps_x ~ +0.04, eps_z ~ -0.12): within a tenth of the noise taken for them
@@ -28,15 +42,12 @@ def test_the_twins_observation_matches_a_recorded_two_pair_run(tmp_path: Path):
 
 
 @pytest.mark.slow
-def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(tmp_path: Path):
+def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(two_pair_run: Path):
     """`twin identify`'s read of nu (twin.sim.poisson.poisson_for_modulus, read_run) on a recorded
     two-pair run of the fast block at nu 0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval
     holds the truth and is under +-0.06 wide (the prior's range is +-0.075); the placement is read within
     0.5 mm in x."""
-    truth = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
-    backend = api.sim_backend(truth, seed=5, cameras=True, camera_placements=["lateral", "opposite"])
-    api.compress(backend, duration_s=poisson.DURATION_S, out=tmp_path / "run")
-    said = poisson.poisson_for_modulus(tmp_path / "run", LIBRARY["block"], (0.2, 0.35), narrow=True)
+    said = poisson.poisson_for_modulus(two_pair_run, LIBRARY["block"], (0.2, 0.35), narrow=True)
     read = said.read
     assert read is not None and said.failed is None, said
     low, high = read.poisson_95

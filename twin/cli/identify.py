@@ -213,11 +213,13 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
             )
         return unmeasured
     read = said.read
+    (low, high), beyond = read.poisson_95_simulated()
     if not args.poisson_from_cameras:  # reported, not drawn (opt-in: see the docstring)
         notes.append(
-            f"the two stereo pairs read nu {read.poisson:.3f} ({read.poisson_95[0]:.3f}-"
-            f"{read.poisson_95[1]:.3f}, 95 %); the modulus simulations still draw the tolerated "
-            f"{tolerated[0]:g}-{tolerated[1]:g} (--poisson-from-cameras draws within the reading)"
+            f"the two stereo pairs read nu {read.poisson:.3f} ({low:.3f}-{high:.3f}, 95 %"
+            f"{', cut to the Poisson ratios simulated' if beyond else ''}); the modulus simulations still "
+            f"draw the tolerated {tolerated[0]:g}-{tolerated[1]:g} (--poisson-from-cameras draws within "
+            "the reading)"
         )
         return read.to_json() | {"drawn_range": list(tolerated), "narrowed": False}
     if said.note:

@@ -188,11 +188,23 @@ class PoissonRead:
     strains: tuple[float, float]
     simulations: int
 
+    def poisson_95_simulated(self) -> tuple[tuple[float, float], bool]:
+        """nu's 95 % interval within the Poisson ratios the twin simulated (SIM_POISSON's ends), and
+        whether the read's own (linearised) interval reached beyond them: where it does, the cameras
+        cannot narrow nu on that side (a flat strain-to-nu slope gives intervals like -8 to 8)."""
+        low, high = SIM_POISSON[0], SIM_POISSON[-1]
+        read_low, read_high = self.poisson_95
+        beyond = read_low < low or read_high > high
+        return (max(read_low, low), min(read_high, high)), beyond
+
     def to_json(self) -> dict:
         """As the results file records it, with where it came from."""
+        within, beyond = self.poisson_95_simulated()
         return {
             "poisson": self.poisson,
-            "poisson_ci95": list(self.poisson_95),
+            "poisson_ci95": list(within),
+            "poisson_ci95_linearised": list(self.poisson_95),
+            "poisson_ci95_beyond_simulated": beyond,
             "young_from_strains_pa": self.young_pa,  # not the identification's E (the squeeze's)
             "young_from_strains_ci95_pa": list(self.young_95_pa),
             "placement_m": list(self.placement_m),
@@ -201,7 +213,8 @@ class PoissonRead:
             "source": "two opposite stereo pairs: the object's width (its two x faces) against its top (the "
             "downward-facing taxels) at rest and at the squeeze's troughs, read through the twin over E x nu "
             "(twin.sim.poisson; interval: the strains' noise, twin.vision.lateral_strain.STRAIN_NOISE, and "
-            "the grid fit's residuals)",
+            "the grid fit's residuals, linearised, then cut to the simulated Poisson ratios "
+            f"{SIM_POISSON[0]:g}-{SIM_POISSON[-1]:g})",
         }
 
 

@@ -58,6 +58,22 @@ def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(two_pa
     # to the read's interval, the same function for both.
     assert said.drawn == poisson.drawn_poisson_range((0.2, 0.35), read.poisson_95)[0]
     assert 0.2 <= said.drawn[0] < 0.3 < said.drawn[1] <= 0.35
+    # The results file's interval stays within the Poisson ratios the twin simulated, and says whether
+    # the linearised read reached beyond them.
+    recorded = read.to_json()
+    assert recorded["poisson_ci95_linearised"] == [low, high]
+    assert recorded["poisson_ci95"] == [max(low, 0.2), min(high, 0.35)]
+    assert recorded["poisson_ci95_beyond_simulated"] == (low < 0.2 or high > 0.35)
+
+
+def test_a_read_whose_interval_reaches_beyond_the_simulated_poisson_ratios_is_cut_to_them():
+    """A flat strain-to-nu slope gives a linearised interval like -8 to 8.4 (seen on hidden draw 2043):
+    the results file states nu within the simulated 0.2-0.35 instead, and that it was cut."""
+    wide = poisson.PoissonRead(0.35, (-8.0, 8.4), 40e3, (30e3, 50e3), (0.0, 0.0), (0.04, -0.12), 12)
+    assert wide.poisson_95_simulated() == ((0.2, 0.35), True)
+    narrow = poisson.PoissonRead(0.3, (0.27, 0.33), 40e3, (30e3, 50e3), (0.0, 0.0), (0.04, -0.12), 12)
+    assert narrow.poisson_95_simulated() == ((0.27, 0.33), False)
+    assert wide.to_json()["poisson_ci95"] == [0.2, 0.35] and wide.to_json()["poisson_ci95_beyond_simulated"]
 
 
 def test_the_cameras_interval_narrows_the_tolerated_poisson_range():

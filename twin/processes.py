@@ -115,10 +115,12 @@ _MAIN_GUARD_HINT = (
 )
 
 
-def _failed_exit_status(pool: ProcessPoolExecutor) -> int | None:
+def _failed_exit_status(processes: list[multiprocessing.process.BaseProcess]) -> int | None:
     """The exit status of a pool worker that ended by an error of its own (a positive status: a Python
-    exception as it started, e.g. a script without a main guard), or None where none did (a kill)."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
+    exception as it started, e.g. a script without a main guard), or None where none did (a kill).
+    Read once the workers are joined (stop_workers): the pool breaks when a worker's pipe closes, which
+    can be before its exit status can be read (seen on a loaded machine: None, then 1)."""
+    for process in processes:
         if process.exitcode is not None and process.exitcode > 0:
             return int(process.exitcode)
     return None
@@ -142,8 +144,9 @@ def worker_pool(
     try:
         yield pool
     except BrokenProcessPool as exc:  # a worker killed (the OOM killer, `kill -9`): one line, not a traceback
-        failed = _failed_exit_status(pool)
-        stop_workers(pool)
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        stop_workers(pool)  # terminated and joined: every worker's exit status is final
+        failed = _failed_exit_status(processes)
         if failed is not None:  # an error at the worker's start, printed by it above: not a kill
             raise WorkerLostError(
                 f"a worker process failed as it started (exit status {failed}; its error is printed above)"

@@ -7,7 +7,7 @@ import signal
 import pytest
 
 from twin.interface.errors import ConfigError, TwinError, WorkerLostError
-from twin.processes import run_killable
+from twin.processes import run_killable, worker_pool
 
 
 def _square(x: int) -> int:
@@ -20,6 +20,10 @@ def _refuse(what: str) -> None:
 
 def _die() -> None:
     os.kill(os.getpid(), signal.SIGKILL)  # as the OOM killer would
+
+
+def _die_on(_item: int) -> None:
+    _die()
 
 
 def test_the_childs_result_and_its_error_come_back_as_if_run_here():
@@ -63,3 +67,11 @@ def test_a_script_without_a_main_guard_is_told_so_not_that_its_worker_was_killed
     guarded.write_text(f'if __name__ == "__main__":\n{body}')
     done = subprocess.run([sys.executable, str(guarded)], capture_output=True, text=True, timeout=120)
     assert done.stdout.strip() == "[1, 2]", done.stderr
+
+
+def test_a_pool_worker_killed_mid_work_is_said_to_be_killed_not_to_have_failed_as_it_started():
+    """The other side of the main-guard message: a pool worker SIGKILLed at its work (as the OOM killer
+    would) is a kill, whatever exit status the pool's other workers got as they were ended."""
+    killed = r"ended abruptly \(killed, or out of memory\)"
+    with pytest.raises(WorkerLostError, match=killed), worker_pool(2) as pool:
+        list(pool.map(_die_on, [1, 2]))

@@ -35,6 +35,7 @@ SECTIONS = (
     "identification_cameras",
     "interval_calibration",
     "identifiability",
+    "grasp_scatter",
     "nu_from_cameras",
     "identify_speed",
     "shape_network",

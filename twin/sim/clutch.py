@@ -3,7 +3,13 @@
 Coupled: inner = drive, outer = drive/3 (gear ratios 125:1 and 375:1). When the torque the clutch
 passes to the inner link exceeds the breakaway threshold while closing, the inner link is locked
 where it is and the outer link keeps closing at 4/3 of the drive (4/375 vs 1/125, paper §3.1).
-Opening the drive back past the breakaway point re-couples the finger (opening resets the clutch).
+Opening the drive back past the breakaway point re-couples the finger (opening resets the clutch):
+commanded there and moved there, not a holding drive that overshoots or sags under the finger's load.
+The BH8's worm drives are not back-drivable; the twin's drive is a position servo (kp 100 N*m/rad) that
+dips 8-16 counts below a set point held at the breakaway point. A finger whose touch was confirmed as its
+clutch slipped was re-coupled by that dip on some noise seeds and not others, and its inner link then
+closed on with the balance: one grasp or another by chance (docs/identification.md, *What `grasp` is
+made of*).
 """
 
 from __future__ import annotations
@@ -83,8 +89,8 @@ class Clutches:
             if not f.broken_away:
                 if set_point > drive and torque > self.threshold_nm:  # closing and slipping
                     self._break_away(f, data)
-            elif drive <= f.drive_at_breakaway_rad:
-                self._couple(f, data)
+            elif drive <= f.drive_at_breakaway_rad and set_point < f.drive_at_breakaway_rad:
+                self._couple(f, data)  # opened: commanded, and moved, back past the breakaway point
 
     def _read_coupling_torques(self, data: mujoco.MjData) -> None:
         """Torque each coupling applies to its link joint: efc_force of its equality row.

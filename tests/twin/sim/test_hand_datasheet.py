@@ -92,6 +92,23 @@ def test_opening_resets_the_clutch():
     assert joint(world, "f3_outer") == pytest.approx(0.0, abs=math.radians(1.5))
 
 
+def test_a_finger_held_just_past_its_breakaway_point_stays_broken_away():
+    """Only opening resets the clutch: a finger brought back to hold one count past its breakaway point
+    (a touch confirmed as the clutch slipped) keeps it slipped though its drive servo overshoots and
+    sags a few counts under the load, and its inner link stays locked. Re-coupled by that dip, the inner
+    link closed on with the balance, one grasp or another by the noise (docs/identification.md)."""
+    world, hand = make_hand(add_bar_over_f3)
+    move(world, hand, [0, 0, 6000, 0], 3.0, velocity=3000)
+    assert world.clutches.broken_away[2]
+    inner_stop = joint(world, "f3_inner")
+    breakaway_counts = world.clutches.fingers[2].drive_at_breakaway_rad / units.INNER_RAD_PER_COUNT
+    move(world, hand, [0, 0, breakaway_counts + 1.0, 0], 2.0, velocity=3000)
+    assert world.clutches.broken_away[2]
+    assert joint(world, "f3_inner") == pytest.approx(inner_stop, abs=math.radians(0.5))
+    held_counts = joint(world, "f3_drive") / units.INNER_RAD_PER_COUNT
+    assert held_counts == pytest.approx(breakaway_counts + 1.0, abs=3.0)
+
+
 def test_no_load_strain_gauge_reads_135_plus_minus_3():
     world, hand = make_hand()
     readings = []

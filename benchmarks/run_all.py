@@ -73,6 +73,14 @@ def read_sections(path: Path) -> dict[str, str]:
     return dict(found)
 
 
+def read_preamble(path: Path) -> str:
+    """What an existing BENCHMARKS.md says before its first section (its title and notes that span
+    sections), kept as it is; a new file gets the title alone."""
+    if not path.exists():
+        return "# Benchmarks\n\n"
+    return path.read_text().split("<!-- section:", 1)[0]
+
+
 def main() -> int:
     """Run the chosen sections and write BENCHMARKS.md."""
     parser = argparse.ArgumentParser(description=__doc__)
@@ -82,7 +90,7 @@ def main() -> int:
     args = parser.parse_args()
     os.environ.setdefault("MUJOCO_GL", "egl")
     sys.path.insert(0, str(ROOT))
-    sections = read_sections(args.out)
+    sections, preamble = read_sections(args.out), read_preamble(args.out)
     for name in args.only.split(","):
         module = importlib.import_module(f"benchmarks.{name}")
         print(f"running {name} ...", file=sys.stderr, flush=True)
@@ -91,7 +99,7 @@ def main() -> int:
         if hasattr(module, "plot"):
             module.plot(results, str(ROOT / "benchmarks" / f"{name}.png"))
     body = [f"<!-- section:{n} -->\n{sections[n]}<!-- /section:{n} -->\n" for n in SECTIONS if n in sections]
-    args.out.write_text("# Benchmarks\n\n" + "\n".join(body))
+    args.out.write_text(preamble + "\n".join(body))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
 

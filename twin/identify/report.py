@@ -221,10 +221,10 @@ def log_rerun(ident: Identification, path: Path) -> Path:
     )
     from twin.viz.rerun_log import TIMELINE, look_target_of
 
+    eye = look_target_of(ident.run_path / RRD_NAME)
+    kind = kind_of_run(ident.run_path, eye)  # before the file is opened: not read back half-written
     rec = rr.RecordingStream("barrett_twin", recording_id=ident.run_path.name)
     rec.save(path)
-    eye = look_target_of(ident.run_path / RRD_NAME)
-    kind = kind_of_run(ident.run_path, eye)
     series = {  # the identification's own series: its views' y ranges span them (the run's are in kind)
         f"/plots/identify/f{f.finger}/{name}": np.asarray(values, dtype=float)
         for f in ident.fingers

@@ -171,6 +171,25 @@ def test_the_rerun_file_names_and_colours_its_series_on_its_own(ident, tmp_path)
     assert len(names) == 4 * len(ident.fingers)
 
 
+def test_writing_the_rerun_file_inside_the_run_warns_of_nothing(ident, sphere_run, tmp_path):
+    """`twin identify RUN` writes RUN/identify/identify.rrd while it reads the run's recordings for the
+    blueprint: it must not read its own file half-written (Rerun warned "RRD file has no footer" on every
+    identify of the README's quick start)."""
+    import dataclasses
+    import shutil
+    import warnings
+
+    from twin.identify.report import log_rerun
+
+    run = tmp_path / "run"
+    shutil.copytree(sphere_run, run, ignore=shutil.ignore_patterns("identify", "fit"))
+    (run / "identify").mkdir()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        log_rerun(dataclasses.replace(ident, run_path=run), run / "identify" / "identify.rrd")
+    assert not [str(w.message) for w in caught if "rerun" in w.category.__module__.lower()]
+
+
 def test_the_rerun_file_carries_the_result_and_a_blueprint_that_shows_it(sphere_identified):
     """`rerun run.rrd identify/identify.rrd`, without `twin view`: identify.rrd holds the result as a
     Markdown document (E, its interval, k_s and R^2 per finger) and the run's blueprint with an

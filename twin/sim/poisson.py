@@ -191,11 +191,12 @@ class PoissonRead:
     def poisson_95_simulated(self) -> tuple[tuple[float, float], bool]:
         """nu's 95 % interval within the Poisson ratios the twin simulated (SIM_POISSON's ends), and
         whether the read's own (linearised) interval reached beyond them: where it does, the cameras
-        cannot narrow nu on that side (a flat strain-to-nu slope gives intervals like -8 to 8)."""
+        cannot narrow nu on that side (a flat strain-to-nu slope gives intervals like -8 to 8). An interval
+        wholly beyond one end is that end (0.38-0.45 reads 0.35-0.35: nu at least the twin's largest)."""
         low, high = SIM_POISSON[0], SIM_POISSON[-1]
         read_low, read_high = self.poisson_95
         beyond = read_low < low or read_high > high
-        return (max(read_low, low), min(read_high, high)), beyond
+        return (min(max(read_low, low), high), max(min(read_high, high), low)), beyond
 
     def to_json(self) -> dict:
         """As the results file records it, with where it came from."""

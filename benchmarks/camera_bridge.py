@@ -96,7 +96,12 @@ def run(quick: bool = False) -> dict:
             outside = position_agreement(tmp_path / "without", tmp_path / "with", exclude_s=windows)
         finally:
             proc.send_signal(signal.SIGINT)
-            proc.wait(timeout=60)
+            try:
+                proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:  # never left rendering beside the next benchmark
+                proc.kill()
+                proc.wait()
+                raise RuntimeError("the rig emulator outlived its Ctrl-C by 60 s: killed") from None
     return {
         "duration_s": duration_s,
         "without": without,

@@ -11,6 +11,7 @@ import importlib
 import os
 import platform
 import re
+import signal
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -89,6 +90,10 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md")
     args = parser.parse_args()
     os.environ.setdefault("MUJOCO_GL", "egl")
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        # A background job of a script starts with Ctrl-C ignored, and so would the emulators the
+        # benchmarks stop with it (camera_bridge's kept rendering for its 600 s beside the next ones).
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.path.insert(0, str(ROOT))
     sections, preamble = read_sections(args.out), read_preamble(args.out)
     for name in args.only.split(","):

@@ -5,10 +5,9 @@ The load case is the grasp's: in the compress procedure the three distal links c
 lie flat on its top (measured in the twin's default run: contact normals -z within 4 degrees, the links'
 palmar faces 8-9 mm into a 70 mm block), pressing it onto the palm. The bench poses the links' collision
 geometry (models/barrett_mjcf/bh8.xml: the distal box and its tip capsule) by the hand's own kinematics,
-level, where the grasp holds them; it presses them 2 to 10 mm into the object from first touch, the
+level, where the grasp holds them; it presses them 2 / 4 / 6 mm into the object from first touch, the
 object resting on the palm. twin.sim.fem solves the same case (rigid links, frictionless unilateral
-contact, the palm under the object) and k is chosen so MuJoCo's force matches the FEM's at the depth the
-grasp works at (FIT_DEPTH_M); the forces at the others are stated beside it.
+contact, the palm under the object) and k is chosen so MuJoCo's force matches the FEM's over the depths.
 
 k depends on the geometry, the Poisson ratio, the discretization and MuJoCo, not on E (MuJoCo's flex force
 is linear in E and the fingers' contact is far stiffer than foam: benchmarks/foam_fidelity.py measures
@@ -38,19 +37,9 @@ import numpy as np
 from twin.interface.errors import ConfigError
 from twin.sim.foam import PRESETS, FoamParams
 
-CALIBRATION_VERSION = 2
-"""Bumped whenever the load case, the FEM or the fit change: every cached k is then stale (2: depths to
-10 mm, k matched at FIT_DEPTH_M; 1 fitted 2 / 4 / 6 mm in log)."""
-DEPTHS_M = (0.002, 0.004, 0.006, 0.008, 0.010)
-FIT_DEPTH_M = 0.010
-"""k makes the flex's force equal the FEM's at this depth: where the compress procedure's grasp works.
-Its load (the pads' lumped force over the three fingertips over the compression, measured in the twin's
-default 8.5 s runs) is the FEM's force at about 9-10 mm on the 40 kPa library block (17-20 N) and 10.6 mm
-on the 80 kPa sphere (10-11 N); softer foams are grasped deeper (the 15 kPa block ~16-20 mm), firmer ones
-shallower (the 150 kPa block ~4 mm). On a flat top the flex follows the FEM at every depth whichever one
-k is matched at (within a few %); on a round top the FEM's force grows faster than linearly with depth
-(its contact widens, as in Hertz) and the flex's does not, so one k serves one depth: the k of every
-depth is kept with the calibration (`k_by_depth`), and BENCHMARKS.md states what one k costs elsewhere."""
+CALIBRATION_VERSION = 1
+"""Bumped whenever the load case, the FEM or the fit change: every cached k is then stale."""
+DEPTHS_M = (0.002, 0.004, 0.006)
 REFERENCE_YOUNG_PA = 40e3
 """The modulus the bench runs at (k does not depend on it; the library block's)."""
 GRASP_INDENT_M = 0.009
@@ -71,6 +60,8 @@ SHIPPED = Path(__file__).with_name("calibrations.json")
 POISSON_NODES = (0.2, 0.35)
 """A mesh foam is calibrated at these Poisson ratios (the range of flexible foams) and its k interpolated
 linearly between them (benchmarks/foam_calibration.py measures what that costs at the midpoint)."""
+MAX_RESIDUAL = 0.15
+"""The most a calibrated flex's force may differ from the FEM's at any depth for its k to be applied."""
 MAX_FIT_ROUNDS = 5
 TOPPLED_M = 0.005
 """A foam whose centre moved further than this across the palm in the bench toppled or rolled."""
@@ -181,7 +172,7 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
     if entry is not None and entry.get("uncalibrated"):  # a mesh's node the bench could not hold, at its nu
         return Scale(1.0, "uncalibrated", _summary(entry) | {"why": entry["uncalibrated"]})
     if entry is not None:
-        return Scale(float(entry["k"]), "calibrated", _summary(entry))
+        return _trusted(Scale(float(entry["k"]), "calibrated", _summary(entry)), entry["residual"])
     if foam.shape != "mesh":
         law = _laws().get(f"{foam.shape}/{foam.fidelity}")
         if law is None:
@@ -190,8 +181,8 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
             why = f"the shipped calibrations are MuJoCo {law['mujoco']}'s; this is {mujoco.__version__}"
             return Scale(1.0, "uncalibrated", {"why": why})
         k = float(np.exp(law_features(foam, law) @ np.asarray(law["coef"])))
-        detail = {key: law[key] for key in ("fitted_on", "held_out_max_error", "max_residual", "date")}
-        return Scale(k, "law", detail)
+        detail = {key: law[key] for key in ("fitted_on", "held_out_max_error", "date")}
+        return _trusted(Scale(k, "law", detail), [law["max_residual"]])
     nodes: list[dict[str, Any]] = []
     for nu in POISSON_NODES:
         at = foam.with_overrides(poisson=nu)
@@ -205,7 +196,19 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
     (nu0, k0), (nu1, k1) = ((n["foam"]["poisson"], n["k"]) for n in nodes)
     k = float(k0 + (k1 - k0) * (foam.poisson - nu0) / (nu1 - nu0))
     detail = _summary(nodes[0]) | {"poisson_nodes": list(POISSON_NODES), "k_at_nodes": [k0, k1]}
-    return Scale(k, "calibrated", detail | {"residual": [r for n in nodes for r in n["residual"]]})
+    return _trusted(Scale(k, "calibrated", detail), [r for n in nodes for r in n["residual"]])
+
+
+def _trusted(scale: Scale, residual: list[float]) -> Scale:
+    """`scale`, or k = 1 where one k leaves the force more than MAX_RESIDUAL off the FEM's at some depth:
+    a round top's contact widens with depth in the FEM, not on the flex's facets, and a k fitted from 2 to
+    6 mm off first touch would then misstate the grasp, which works deeper (docs/foam_calibration.md)."""
+    worst = max(abs(r) for r in residual)
+    if worst <= MAX_RESIDUAL:
+        return scale
+    why = (f"one k ({scale.k:.3g}) leaves the force {100 * worst:.0f} % off the FEM's at some depth "
+           f"(at most {100 * MAX_RESIDUAL:.0f} %): not applied")  # fmt: skip
+    return Scale(1.0, "uncalibrated", scale.detail | {"why": why, "k_fitted": scale.k})
 
 
 def _summary(entry: dict[str, Any]) -> dict[str, Any]:
@@ -467,11 +470,9 @@ def _add_surface_volume(gmsh: Any, surface: Any, remesh: bool) -> None:
     model.geo.synchronize()
 
 
-def fem_force_per_pa(
-    foam: FoamParams, tips: list[TipGeom], depths_m: tuple[float, ...] = DEPTHS_M
-) -> tuple[np.ndarray, dict[str, Any]]:
-    """The FEM's force on the links at `depths_m` per pascal of E, refined (FEM_LEVELS_M) until the
-    deepest force changes by less than FEM_CONVERGED; the record says how it converged."""
+def fem_force_per_pa(foam: FoamParams, tips: list[TipGeom]) -> tuple[np.ndarray, dict[str, Any]]:
+    """The FEM's force on the links at DEPTHS_M per pascal of E, refined (FEM_LEVELS_M) until the deepest
+    force changes by less than FEM_CONVERGED; the record says how it converged."""
     from twin.sim.fem import indentation_force_per_pa
 
     t0 = time.process_time()
@@ -479,7 +480,7 @@ def fem_force_per_pa(
     record, previous = [], None
     for edge_top_m, edge_far_m in FEM_LEVELS_M:
         result = indentation_force_per_pa(
-            reference_mesh(foam, edge_top_m, edge_far_m), foam.poisson, gap, depths_m
+            reference_mesh(foam, edge_top_m, edge_far_m), foam.poisson, gap, DEPTHS_M
         )
         force = np.array(result.force_per_pa_n)
         change = None if previous is None else float(abs(force[-1] / previous[-1] - 1.0))
@@ -532,17 +533,13 @@ def bench_model(
     return compile_scene(root)
 
 
-def bench_force_n(
-    foam: FoamParams, tips: list[TipGeom], modulus_scale: float, depths_m: tuple[float, ...] = DEPTHS_M
-) -> np.ndarray:
-    """MuJoCo's force on the tips at `depths_m` from first touch: settle, then ramp and hold each depth
+def bench_force_n(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> np.ndarray:
+    """MuJoCo's force on the tips at DEPTHS_M from first touch: settle, then ramp and hold each depth
     (the mean over the last third of each hold)."""
-    return _bench(foam, tips, modulus_scale, depths_m)[0]
+    return _bench(foam, tips, modulus_scale)[0]
 
 
-def _bench(
-    foam: FoamParams, tips: list[TipGeom], modulus_scale: float, depths_m: tuple[float, ...] = DEPTHS_M
-) -> tuple[np.ndarray, float]:
+def _bench(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> tuple[np.ndarray, float]:
     """bench_force_n's forces, and how far (m) the foam's centre moved across the palm meanwhile: a
     round-bottomed object may topple off the tips' line, where the FEM holds its base."""
     model = bench_model(foam, tips, modulus_scale)
@@ -564,7 +561,7 @@ def _bench(
     n_ramp, n_hold = round(RAMP_S / dt), round(HOLD_S / dt)
     forces, previous = [], 0.0
     wrench = np.zeros(6)
-    for depth in depths_m:
+    for depth in DEPTHS_M:
         samples = []
         for i in range(n_ramp + n_hold):
             d = previous + (depth - previous) * min(1.0, (i + 1) / n_ramp)
@@ -602,20 +599,19 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
             f"foam '{foam.name}': the FEM of its fingertip contact cannot be built: {detail}"
         ) from None
     target = fem_per_pa * REFERENCE_YOUNG_PA
-    say(f"FEM: {' / '.join(f'{f:.2f}' for f in target)} N at {_depths_text()}; fitting the flex...")
+    say(f"FEM: {' / '.join(f'{f:.2f}' for f in target)} N at 2 / 4 / 6 mm; fitting the flex...")
     k, rounds = k0, []
     for _ in range(MAX_FIT_ROUNDS):
         force, moved_m = _bench(bench, tips, k)
         if not (force > 0).all():  # no contact at some depth: nothing to fit (and no log of zero)
             cause = (f"the object moved {1e3 * moved_m:.0f} mm across the palm (it toppled or rolled)"
                      if moved_m > TOPPLED_M else "MuJoCo found no contact where the FEM did")  # fmt: skip
-            why = (f"the bench read {' / '.join(f'{f:.2f}' for f in force)} N at {_depths_text()} where the "
+            why = (f"the bench read {' / '.join(f'{f:.2f}' for f in force)} N at 2 / 4 / 6 mm where the "
                    f"FEM, which holds the base, read {' / '.join(f'{f:.2f}' for f in target)} N: {cause}; "
                    "it cannot be calibrated resting on the palm: k = 1")  # fmt: skip
             say(f"foam '{foam.name}': {why}")
             return _entry(foam, bench, t0, 1.0, target, force, None, rounds, fem_info) | {"uncalibrated": why}
-        at = DEPTHS_M.index(FIT_DEPTH_M)
-        ratio = float(target[at] / force[at])
+        ratio = float(np.exp(np.mean(np.log(target / force))))
         rounds.append({"k": k, "force_n": [round(float(f), 4) for f in force]})
         k *= ratio
         if abs(ratio - 1.0) < FIT_TOLERANCE:
@@ -623,9 +619,7 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
     residual = force / target - 1.0
     if not (math.isfinite(k) and k > 0):
         raise ConfigError(f"foam '{foam.name}': the flex's force could not be fitted to the FEM's (k = {k})")
-    k_by_depth = rounds[-1]["k"] * target / force  # the k each depth alone would take (force ~ k)
-    entry = _entry(foam, bench, t0, k, target, force, residual, rounds, fem_info)
-    return entry | {"k_by_depth": [round(float(v), 5) for v in k_by_depth]}
+    return _entry(foam, bench, t0, k, target, force, residual, rounds, fem_info)
 
 
 def _entry(
@@ -647,12 +641,10 @@ def _entry(
             for key in ("shape", "size_m", "poisson", "fidelity", "dof", "resolution")
         }
         | ({"mesh_file": Path(foam.mesh_file).name} if foam.shape == "mesh" else {}),
-        "load": f"the three distal links (bh8.xml collision geoms), level, pressed {_depths_text()} into it",
-        "depths_m": list(DEPTHS_M),
+        "load": "the three distal links (bh8.xml collision geoms), level, pressed 2 / 4 / 6 mm into the top",
         "fem_force_n": [round(float(f), 4) for f in target],
         "twin_force_n": [round(float(f), 4) for f in force],
         "residual": None if residual is None else [round(float(r), 4) for r in residual],
-        "fit_depth_m": FIT_DEPTH_M,
         "reference_young_pa": REFERENCE_YOUNG_PA,
         "fit_rounds": rounds,
         "fem": fem_info,
@@ -665,10 +657,6 @@ def _entry(
             "wall_s": round(time.perf_counter() - t0, 1),
         },
     }
-
-
-def _depths_text() -> str:
-    return " / ".join(f"{1e3 * d:g}" for d in DEPTHS_M) + " mm"
 
 
 def _version(dist: str) -> str:

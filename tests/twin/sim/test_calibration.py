@@ -58,30 +58,24 @@ def test_the_fingertips_lie_level_on_the_top_where_the_grasp_holds_them():
 
 
 def test_library_foams_compose_with_their_shipped_calibration_and_others_with_the_law():
-    """Every library foam takes the k that matches the FEM at FIT_DEPTH_M, where the grasp works (within
-    the fit's tolerance), and states its force's error at every other depth. The fast flat tops follow
-    the FEM within 5 % at all of them (their flex, like the FEM, is linear in depth); the faithful preset
-    and round tops do not, and say by how much. Under another MuJoCo than the calibrations' none applies."""
+    """Flat tops take their k; a round top whose one k cannot follow the FEM within 15 % keeps k = 1 and
+    says why (the fitted k kept beside). Under another MuJoCo than the calibrations' none applies."""
     shipped = json.loads(calibration.SHIPPED.read_text())["laws"]["block/fast"]["mujoco"]
     if mujoco.__version__ != shipped:
         for foam in (LIBRARY["block"], LIBRARY["block"].with_overrides(size_m=(0.05, 0.055, 0.065))):
             scale = calibration.scale_of(foam)
             assert (scale.source, scale.k) == ("uncalibrated", 1.0) and shipped in scale.detail["why"]
         return
-    at = calibration.DEPTHS_M.index(calibration.FIT_DEPTH_M)
     for name, foam in LIBRARY.items():
         for fidelity in ("fast", "faithful"):
             scale = calibration.scale_of(foam.with_overrides(fidelity=fidelity))
-            residual = scale.detail["residual"]
-            assert scale.source == "calibrated" and scale.k != 1.0, (name, fidelity)
-            assert len(residual) == len(calibration.DEPTHS_M), (name, fidelity)
-            assert abs(residual[at]) <= 2 * calibration.FIT_TOLERANCE, (name, fidelity, residual)
-            if foam.shape != "sphere" and fidelity == "fast":
-                assert max(abs(r) for r in residual) <= 0.05, (name, fidelity, residual)
+            if scale.source == "calibrated":
+                assert max(abs(r) for r in scale.detail["residual"]) <= calibration.MAX_RESIDUAL
+            else:
+                assert (name, scale.source, scale.k) == ("sphere", "uncalibrated", 1.0), (name, fidelity)
+                assert "not applied" in scale.detail["why"] and scale.detail["k_fitted"] != 1.0
     other = calibration.scale_of(LIBRARY["block"].with_overrides(size_m=(0.05, 0.055, 0.065), poisson=0.27))
     assert other.source == "law" and 0.3 < other.k < 3.0
-    round_top = calibration.scale_of(LIBRARY["sphere"].with_overrides(size_m=(0.06, 0.06, 0.06)))
-    assert round_top.source == "law" and round_top.detail["max_residual"] > 0.15  # stated, and applied
     coarse = calibration.scale_of(LIBRARY["block"].with_overrides(resolution=5))
     assert coarse.source == "uncalibrated" and coarse.k == 1.0
 
@@ -116,7 +110,7 @@ def test_a_foam_found_in_no_cache_is_calibrated_at_first_use_stored_and_read_bac
     for entry in entries:  # provenance: the FEM's mesh and convergence, the versions, the date
         assert entry["fem"]["dofs"] > 1000 and entry["fem"]["convergence"]
         assert entry["provenance"]["mujoco"] and entry["provenance"]["scikit_fem"] != "absent"
-        assert entry["fem"]["equilibrium"] == pytest.approx([1.0] * len(calibration.DEPTHS_M), abs=1e-3)
+        assert entry["fem"]["equilibrium"] == pytest.approx([1.0, 1.0, 1.0], abs=1e-3)
     k0, k1 = sorted((e["foam"]["poisson"], e["k"]) for e in entries)
     nu = 0.31
     assert first.k == pytest.approx(k0[1] + (k1[1] - k0[1]) * (nu - k0[0]) / (k1[0] - k0[0]))

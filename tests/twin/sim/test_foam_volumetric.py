@@ -89,11 +89,7 @@ def test_a_mesh_foam_runs_the_compress_procedure_and_reads_back(
     assert run.metadata["mujoco_warnings"] == {}
     assert not [r for r in caplog.records if r.name == "absl"]
     assert run.metadata["final_phase"] == "compress"
-    if fidelity == "fast":
-        assert (run.stream("hand")["torque_nm"][-30:] > 0.05).all()  # the hand holds the mesh foam
-    # The faithful preset's grasp of a round top chatters on MuJoCo 4.0 (distal torques swinging over the
-    # gauge's range, contact spikes of 60-220 N), at k = 1 as at its calibrated k: it held here at k = 1
-    # by chance of where the chatter stopped (docs/foam_calibration.md, *What it leaves*).
+    assert (run.stream("hand")["torque_nm"][-30:] > 0.05).all()  # the hand holds the mesh foam
 
 
 @pytest.mark.parametrize(

@@ -72,9 +72,12 @@ def test_the_cli_prints_a_recovered_cycle_once_and_no_python_warning(tmp_path: P
     )
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("twin: warning: the hand driver recovered 1 cycle(s)"), (
-        lines
-    )
+    recovered = [line for line in lines if line.startswith("twin: warning: the hand driver recovered")]
+    assert len(recovered) == 1 and "recovered 1 cycle(s)" in recovered[0], lines
+    # Every line is the command's own (no Python warning text). On a busy machine the loop-rate warning may
+    # join it, truthfully: a 2 s run has 40 ms of slack before 98 % (beside the suite one took 2.16 s).
+    assert all(line.startswith("twin: warning: ") for line in lines), lines
+    assert len(lines) == 1 or (len(lines) == 2 and any("hand loop ran at" in line for line in lines)), lines
     import rerun as rr  # the viewer's log says it too
 
     from twin.viz.rerun_log import _rows

@@ -92,7 +92,7 @@ def main() -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         # A background job of a script starts with Ctrl-C ignored, and so would the emulators the
-        # benchmarks stop with it (camera_bridge's kept rendering for its 600 s beside the next ones).
+        # benchmarks stop with it (camera_bridge's once kept rendering for 600 s beside the next ones).
         signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.path.insert(0, str(ROOT))
     sections, preamble = read_sections(args.out), read_preamble(args.out)

@@ -196,7 +196,7 @@ class PoissonRead:
         low, high = SIM_POISSON[0], SIM_POISSON[-1]
         read_low, read_high = self.poisson_95
         beyond = read_low < low or read_high > high
-        return (min(max(read_low, low), high), max(min(read_high, high), low)), beyond
+        return (float(np.clip(read_low, low, high)), float(np.clip(read_high, low, high))), beyond
 
     def to_json(self) -> dict:
         """As the results file records it, with where it came from."""

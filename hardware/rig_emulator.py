@@ -12,6 +12,7 @@ from __future__ import annotations
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from twin.hardware.bh262.emulator import HandEmulator, make_hand_emulator
@@ -20,6 +21,9 @@ from twin.hardware.cameras.emulator import CameraEmulator
 from twin.hardware.pps.emulator import FaultPlan as TactileFaultPlan
 from twin.hardware.pps.emulator import TactileEmulator
 from twin.hardware.rig_config import rig_toml
+
+if TYPE_CHECKING:
+    from twin.sim.foam import FoamParams
 
 
 def twin_tactile_source(twin: RealTimeTwin) -> Callable[[], np.ndarray]:
@@ -40,7 +44,7 @@ class RigEmulator:
 
     def __init__(
         self,
-        object_name: str | None = "block",
+        obj: str | FoamParams | None = "block",
         *,
         baud: int = 9600,
         faults: str | None = None,
@@ -49,12 +53,13 @@ class RigEmulator:
         on_event: Callable[[str], None] | None = None,
         cameras: bool = False,
     ) -> None:
-        """`cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame).
+        """`obj`: a library name, any foam (`twin.api.foam(...)`) or None (make_hand_emulator).
+        `cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame).
 
         Both fault specs are checked first (ConfigError, one line), before the twin is built."""
         tactile_plan = TactileFaultPlan.parse(tactile_faults, option="--tactile-faults")
         self.hand: HandEmulator = make_hand_emulator(
-            object_name, baud=baud, faults=faults, seed=seed, on_event=on_event, stereo=cameras
+            obj, baud=baud, faults=faults, seed=seed, on_event=on_event, stereo=cameras
         )
         self.tactile = TactileEmulator(
             twin_tactile_source(self.hand.twin),

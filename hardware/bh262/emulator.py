@@ -14,6 +14,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 from twin.hardware.bh262.firmware import QUIET_AFTER_S, QUIET_BEFORE_S, Firmware, RealTimeTwin
@@ -28,6 +29,9 @@ from twin.hardware.emulation import (
     parse_faults,
     raise_thread_priority,
 )
+
+if TYPE_CHECKING:
+    from twin.sim.foam import FoamParams
 
 MAX_DELAY_S = 60.0
 """The longest `late` delay a fault may ask for (the driver gives up on a reply long before)."""
@@ -444,7 +448,7 @@ class HandEmulator(PortServer):
 
 
 def make_hand_emulator(
-    object_name: str | None = "block",
+    obj: str | FoamParams | None = "block",
     *,
     baud: int = 9600,
     faults: str | None = None,
@@ -453,14 +457,15 @@ def make_hand_emulator(
     on_event: Callable[[str], None] | None = None,
     stereo: bool = False,
 ) -> HandEmulator:
-    """A hand emulator on a fresh twin holding `object_name` from the foam library (None: no object).
+    """A hand emulator on a fresh twin holding `obj`: a library name, any foam (a hidden modulus, size
+    or scan for an identification through the bridge), or None for the empty hand.
 
     `stereo`: build the twin's scene with the two cameras (for twin.hardware.cameras.emulator)."""
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object
 
     plan = FaultPlan.parse(faults)
-    foam = get_object(object_name) if object_name else None
+    foam = get_object(obj) if isinstance(obj, str) else obj
     twin = RealTimeTwin(SimBackend(foam, seed=seed, stereo=stereo))
     return HandEmulator(twin, baud=baud, options=options, faults=plan, on_event=on_event)
 

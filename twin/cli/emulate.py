@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
+from twin.cli.common import add_foam_overrides, add_mesh_scale
 from twin.interface.errors import ConfigError
 from twin.outputs import check_writable
-from twin.validation import duration, integer, out_file, seed
+from twin.validation import duration, existing_file, integer, out_file, seed
+
+if TYPE_CHECKING:
+    from twin.sim.foam import FoamParams
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -23,6 +28,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--faults", metavar="SPEC", help="hand faults, e.g. garbage@40,drop@80,vanish@200")
     p.add_argument("--tactile-faults", metavar="SPEC", help="rig: tactile faults, e.g. corrupt@30,stall@60:1")
     p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
+    p.add_argument(
+        "--object-mesh",
+        type=existing_file(),
+        metavar="FILE",
+        help="a foam of any closed shape in the hand: an .stl/.obj surface, with --object's material",
+    )
+    add_mesh_scale(p)
     p.add_argument("--seed", type=seed(), default=0, help="seed of the twin's sensor noise")
     p.add_argument(
         "--rig-file",
@@ -37,6 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-cameras", action="store_true", help="rig: leave the stereo cameras out (they cost CPU)"
     )
+    add_foam_overrides(p)  # the object a lab's hand would hold: a modulus, size or placement to identify
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -59,22 +72,19 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from twin.hardware.bh262.emulator import make_hand_emulator
     from twin.hardware.rig_config import rig_toml
     from twin.hardware.rig_emulator import RigEmulator
-    from twin.sim.foam import get_object
 
-    object_name = None if args.object == "none" else args.object
-    if object_name:
-        get_object(object_name)  # unknown names fail here, in one line
+    foam = _foam_from_args(args)  # unknown names, bad meshes and sizes fail here, in one line
 
     def event(message: str) -> None:
         print(f"[emulator] {message}", flush=True)
 
     if args.what == "hand":
         emulator = make_hand_emulator(
-            object_name, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
+            foam, baud=args.baud, faults=args.faults, seed=args.seed, on_event=event
         )
     else:
         emulator = RigEmulator(
-            object_name,
+            foam,
             baud=args.baud,
             faults=args.faults,
             tactile_faults=args.tactile_faults,
@@ -90,7 +100,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     except OSError as exc:
         emulator.close()
         raise ConfigError(f"--port {where}: {exc.strerror or exc}") from None
-    print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {args.object})", flush=True)
+    print(f"hand: {address}  (BH8-262 at {args.baud} baud, object: {_described(foam)})", flush=True)
     if args.what == "rig":
         print(f"tactile: {tactile_address}  (PPS pads, 162 taxels at 30 Hz)", flush=True)
         if emulator.camera_addresses is None:
@@ -119,6 +129,35 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         emulator.close()
     print("emulator stopped", flush=True)
     return 0
+
+
+def _foam_from_args(args: argparse.Namespace) -> FoamParams | None:
+    """The foam in the emulated hand: --object with --object-mesh and the overrides, as `twin run
+    compress` builds it; None for `--object none` (which takes none of them)."""
+    from twin.cli.run import _FOAM_FLAGS
+    from twin.cli.run import _foam_from_args as run_foam
+
+    if args.object == "none":
+        given = [flag for flag, dest in _FOAM_FLAGS if getattr(args, dest, None) is not None]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: --object none leaves the hand empty")
+        return None
+    return run_foam(args)
+
+
+def _described(foam: FoamParams | None) -> str:
+    """The object in one phrase for the ready lines: its name, extents and material."""
+    import numpy as np
+
+    if foam is None:
+        return "none"
+    size = " x ".join(f"{1e3 * s:.4g}" for s in foam.size_m)
+    placed = (
+        ""
+        if not any(foam.placement_m)
+        else " at ({:+.3g}, {:+.3g}) mm".format(*1e3 * np.array(foam.placement_m))
+    )
+    return f"{foam.name}, {size} mm{placed}, E {foam.young_pa / 1e3:.4g} kPa, Poisson {foam.poisson:.3g}"
 
 
 command = cmd_emulate

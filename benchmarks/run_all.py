@@ -34,6 +34,7 @@ SECTIONS = (
     "recording_size",
     "identification",
     "identification_cameras",
+    "identification_hardware",
     "interval_calibration",
     "identifiability",
     "grasp_scatter",

@@ -20,7 +20,7 @@ def test_the_emulated_hand_holds_the_foam_it_was_given():
     with make_hand_emulator(foam) as emulator:
         backend = emulator.twin.backend
         assert backend.foam == foam
-        # the compiled twin's flex spans the size asked for, not the library cylinder's
+        # the compiled twin's flex spans the size asked for, not the library block's
         extents = np.ptp(backend.world.data.flexvert_xpos, axis=0)
         assert extents == pytest.approx(foam.size_m, abs=2e-4)
 

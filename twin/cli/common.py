@@ -112,6 +112,19 @@ def add_foam_overrides(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_object_mesh(p: argparse.ArgumentParser, where: str) -> None:
+    """--object-mesh (a closed surface file becomes the foam, with --object's material) and its
+    --mesh-scale; `where`: whose foam it is, for the help line."""
+    p.add_argument(
+        "--object-mesh",
+        type=existing_file(),
+        metavar="FILE",
+        help=f"a foam of any closed shape {where}: an .stl/.obj surface (e.g. a scan), with --object's "
+        "material",
+    )
+    add_mesh_scale(p)
+
+
 def add_mesh_scale(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--mesh-scale",

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from twin.cli.common import add_foam_overrides, add_mesh_scale
+from twin.cli.common import add_foam_overrides, add_object_mesh
 from twin.interface.errors import ConfigError
 from twin.outputs import check_writable
-from twin.validation import duration, existing_file, integer, out_file, seed
+from twin.validation import duration, integer, out_file, seed
 
 if TYPE_CHECKING:
     from twin.sim.foam import FoamParams
@@ -28,13 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--faults", metavar="SPEC", help="hand faults, e.g. garbage@40,drop@80,vanish@200")
     p.add_argument("--tactile-faults", metavar="SPEC", help="rig: tactile faults, e.g. corrupt@30,stall@60:1")
     p.add_argument("--object", default="block", help="library object in the twin's hand ('none': empty)")
-    p.add_argument(
-        "--object-mesh",
-        type=existing_file(),
-        metavar="FILE",
-        help="a foam of any closed shape in the hand: an .stl/.obj surface, with --object's material",
-    )
-    add_mesh_scale(p)
+    add_object_mesh(p, "in the emulated hand")
     p.add_argument("--seed", type=seed(), default=0, help="seed of the twin's sensor noise")
     p.add_argument(
         "--rig-file",

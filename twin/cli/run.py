@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 from twin.cli.common import (
     add_foam_overrides,
-    add_mesh_scale,
+    add_object_mesh,
     add_run_options,
     print_completion,
     surface_summary,
@@ -35,13 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="library object, see `twin objects` (default: block); on hardware the object in the hand, as "
         "the run records it for `twin fit` (default there: none named)",
     )
-    c.add_argument(
-        "--object-mesh",
-        type=existing_file(),
-        metavar="FILE",
-        help="a foam of any closed shape: an .stl/.obj surface (e.g. a scan), with --object's material",
-    )
-    add_mesh_scale(c)
+    add_object_mesh(c, "in the twin's hand")
     add_run_options(c, duration_s=10.0)
     c.add_argument(
         "--cameras", action="store_true", help="sample the stereo pair at 30 fps and reconstruct the foam"

@@ -32,6 +32,7 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -70,6 +71,52 @@ def expected_beyond(sigma_log: np.ndarray, bound: float = BOUND, runs: int = RUN
     s = np.asarray(sigma_log, dtype=float)
     beyond = norm.sf(math.log1p(bound) / s) + norm.cdf(math.log1p(-bound) / s)
     return float(runs * np.mean(beyond))
+
+
+def simulations_kept(
+    simulate: Callable[[tuple], tuple[float, np.ndarray] | None],
+    jobs: list[tuple],
+    kept: Path,
+    workers: int = 2,
+) -> list[tuple[float, np.ndarray] | None]:
+    """`simulate(job)` for every job, each result appended to `kept`.partial.jsonl as it finishes, so an
+    hour of simulations stopped anywhere (Ctrl-C, a session's end) resumes where it stopped; once all
+    are done they are written to `kept` (JSON), which a later call reads back whole."""
+    if kept.exists():
+        return [None if r is None else (r[0], np.array(r[1])) for r in json.loads(kept.read_text())]
+    partial = kept.with_suffix(".partial.jsonl")
+    done: dict[int, list | None] = {}
+    if partial.exists():
+        for line in partial.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except ValueError:  # the line being written when the last call was stopped
+                continue
+            done[entry["job"]] = entry["result"]
+    pending = [i for i in range(len(jobs)) if i not in done]
+    with partial.open("a") as out:
+        if out.tell() and not partial.read_bytes().endswith(b"\n"):
+            out.write("\n")  # end the cut line, so the next result starts a line of its own
+
+        def keep(i: int, result: tuple[float, np.ndarray] | None) -> None:
+            done[i] = None if result is None else [float(result[0]), [float(v) for v in result[1]]]
+            out.write(json.dumps({"job": i, "result": done[i]}) + "\n")
+            out.flush()
+            if len(done) % 50 == 0 or len(done) == len(jobs):
+                print(f"  floor: {len(done)} of {len(jobs)} simulations", file=sys.stderr, flush=True)
+
+        if workers == 1:
+            for i in pending:
+                keep(i, simulate(jobs[i]))
+        else:
+            with ProcessPoolExecutor(workers) as pool:
+                finished = pool.map(simulate, [jobs[i] for i in pending], chunksize=2)
+                for i, result in zip(pending, finished, strict=True):
+                    keep(i, result)
+    results = [done[i] for i in range(len(jobs))]
+    kept.write_text(json.dumps(results))
+    partial.unlink()
+    return [None if r is None else (r[0], np.array(r[1])) for r in results]
 
 
 def _simulate(args: tuple) -> tuple[float, np.ndarray] | None:
@@ -162,14 +209,9 @@ def floor(quick: bool, scratch: Path) -> list[dict]:
         for condition in CONDITIONS
         for foam in condition_foams(case, condition, seed=100 + i, k=k)
     ]
-    # Under TWIN_BENCH_RUNS the simulations are kept, and a second call reads them back.
+    # Under TWIN_BENCH_RUNS the simulations are kept as they finish, and a later call reads them back.
     kept = scratch / f"simulations-{FLOOR_SEED}-{len(objects)}x{k}.json"
-    if kept.exists():
-        simulated = [None if r is None else (r[0], np.array(r[1])) for r in json.loads(kept.read_text())]
-    else:
-        with ProcessPoolExecutor(2) as pool:
-            simulated = list(pool.map(_simulate, [(foam, None) for _, _, foam in jobs], chunksize=2))
-        kept.write_text(json.dumps([None if r is None else [r[0], list(r[1])] for r in simulated]))
+    simulated = simulations_kept(_simulate, [(foam, None) for _, _, foam in jobs], kept)
     rows = []
     for i, case in enumerate(objects):
         row = {key: case[key] for key in ("shape", "young_pa", "poisson", "placement_m")}

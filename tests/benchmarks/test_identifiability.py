@@ -1,6 +1,7 @@
 """benchmarks/identifiability.py measures what it says: the floor's arithmetic, its conditions and the
 features it reads off a real twin run."""
 
+import json
 import math
 
 import numpy as np
@@ -80,3 +81,43 @@ def test_run_features_of_a_twin_run(tmp_path):
         assert features[f"f{k}_area_taxels"] >= 1
         assert 0.0 < features[f"f{k}_centre_x_mm"] < 60.0  # on the outer link, beyond the distal joint
     assert features["palm_force"] >= 0.0
+
+
+def _square(job: tuple) -> tuple[float, np.ndarray] | None:
+    """A stand-in simulation: S = x^2, shares (x, 1, 2); None for a dropped object (negative x)."""
+    (x,) = job
+    return None if x < 0 else (float(x * x), np.array([x, 1.0, 2.0]))
+
+
+def test_the_floor_simulations_resume_where_a_stopped_call_left_them(tmp_path):
+    """An hour of simulations stopped anywhere loses none that finished: each is kept as it ends, a cut
+    last line is skipped (and computed again), and a later call reads the whole set back."""
+    jobs = [(x,) for x in (3.0, -1.0, 2.0, 5.0)]
+    kept = tmp_path / "simulations.json"
+    partial = kept.with_suffix(".partial.jsonl")
+    partial.write_text(
+        '{"job": 0, "result": [9.0, [3.0, 1.0, 2.0]]}\n{"job": 1, "result": null}\n{"job": 3, "res'
+    )
+    calls: list[tuple] = []
+
+    def counted(job: tuple) -> tuple[float, np.ndarray] | None:
+        calls.append(job)
+        return _square(job)
+
+    def stopped(job: tuple) -> tuple[float, np.ndarray] | None:
+        if job == (5.0,):
+            raise KeyboardInterrupt  # stopped in the middle: job 2's result is already kept
+        return counted(job)
+
+    with pytest.raises(KeyboardInterrupt):
+        identifiability.simulations_kept(stopped, jobs, kept, workers=1)
+    assert [json.loads(line)["job"] for line in partial.read_text().splitlines()[-1:]] == [2]
+    calls.clear()
+    got = identifiability.simulations_kept(counted, jobs, kept, workers=1)
+    assert calls == [(5.0,)]  # jobs 0, 1 and 2 were kept; 3's line was cut
+    assert got[1] is None and [g[0] for g in (got[0], got[2], got[3])] == [9.0, 4.0, 25.0]
+    assert np.array_equal(got[3][1], [5.0, 1.0, 2.0])
+    assert kept.is_file() and not partial.exists()
+    calls.clear()
+    again = identifiability.simulations_kept(counted, jobs, kept, workers=1)
+    assert calls == [] and again[1] is None and again[3][0] == 25.0

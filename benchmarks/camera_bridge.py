@@ -10,52 +10,19 @@ Usage: python benchmarks/run_all.py --only camera_bridge
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks import emulated_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 TWIN = [sys.executable, "-m", "twin.cli"]
 SETTLED_S = 3.0
 """Command tracking is averaged after this much of the run (the close and the first contact before)."""
-
-
-def _start_emulator(rig_file: Path, log: Path) -> subprocess.Popen:
-    """`twin emulate rig` on ptys with the cameras, writing rig_file; returns once it says ready."""
-    with log.open("w") as out:
-        proc = subprocess.Popen(
-            [*TWIN, "emulate", "rig", "--port", "pty", "--rig-file", str(rig_file), "--duration", "600"],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            cwd=ROOT,
-        )
-    deadline = time.monotonic() + 120
-    while "\nready" not in log.read_text():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            raise RuntimeError(f"the rig emulator did not start:\n{log.read_text()}")
-        time.sleep(0.1)
-    return proc
-
-
-def _stop(proc: subprocess.Popen, grace_s: float = 60.0) -> None:
-    """Ctrl-C the emulator; kill it (and say so) if it outlives that by `grace_s`: never left rendering
-    beside the next benchmark, as one started with Ctrl-C ignored once did for its 600 s."""
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        print(
-            f"camera_bridge: the rig emulator outlived its Ctrl-C by {grace_s:g} s and was killed",
-            file=sys.stderr,
-        )
 
 
 def _run(rig_file: Path, out: Path, duration_s: float, cameras: bool) -> dict:
@@ -102,7 +69,7 @@ def run(quick: bool = False) -> dict:
     duration_s = 4.0 if quick else 20.0
     with tempfile.TemporaryDirectory(prefix="camera-bridge-") as tmp:
         tmp_path = Path(tmp)
-        proc = _start_emulator(tmp_path / "rig.toml", tmp_path / "emulator.log")
+        proc = emulated_rig.start(tmp_path / "rig.toml", tmp_path / "emulator.log", cwd=ROOT)
         try:
             without = _run(tmp_path / "rig.toml", tmp_path / "without", duration_s, cameras=False)
             with_cameras = _run(tmp_path / "rig.toml", tmp_path / "with", duration_s, cameras=True)
@@ -110,7 +77,7 @@ def run(quick: bool = False) -> dict:
             windows = contact_windows_s(tmp_path / "without")
             outside = position_agreement(tmp_path / "without", tmp_path / "with", exclude_s=windows)
         finally:
-            _stop(proc)
+            emulated_rig.stop(proc)
     return {
         "duration_s": duration_s,
         "without": without,

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import emulated_rig
 from benchmarks import identification as hidden
 
 DRAW_SEED = 2044
@@ -33,8 +34,6 @@ before this draw."""
 FIRST_NOISE_SEED = 30000
 CANDIDATES = 3
 """Draws per shape: the first the hand holds is scored (a tall mesh may topple as the hand closes)."""
-TWIN = [sys.executable, "-m", "twin.cli"]
-READY_TIMEOUT_S = 180.0
 
 
 def emulator_flags(case: dict) -> list[str]:
@@ -63,34 +62,20 @@ def hardware_run(case: dict, scratch: Path, cameras: bool = True) -> dict:
     shutil.rmtree(rig.parent, ignore_errors=True)
     rig.parent.mkdir(parents=True)
     log = rig.parent / "emulator.log"
-    argv = ["emulate", "rig", *emulator_flags(case), "--seed", str(case["seed"]), "--rig-file", str(rig)]
-    argv += [] if cameras else ["--no-cameras"]
-    with log.open("w") as out:  # a file, so a full pipe never stalls the emulator
-        emulator = subprocess.Popen(
-            [*TWIN, *argv, "--duration", "600"], cwd=rig.parent, stdout=out, stderr=subprocess.STDOUT
-        )
+    flags = [*emulator_flags(case), "--seed", str(case["seed"]), *([] if cameras else ["--no-cameras"])]
+    emulator = emulated_rig.start(rig, log, *flags, cwd=rig.parent)
     try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while "\nready" not in log.read_text():
-            if emulator.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"the emulated rig did not start: {log.read_text()[-500:]}")
-            time.sleep(0.2)
         watched = ["--cameras"] if cameras else []
         named = [] if "mesh" in case else ["--object", case["shape"]]  # a hardware run names a library shape
         started = time.perf_counter()
         driver = subprocess.run(
-            [*TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig), *watched, *named,
-             "--duration", str(hidden.DURATION_S), "--out", str(run_dir), "--no-progress"],
+            [*emulated_rig.TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig), *watched,
+             *named, "--duration", str(hidden.DURATION_S), "--out", str(run_dir), "--no-progress"],
             capture_output=True, text=True, cwd=rig.parent, timeout=600,
         )  # fmt: skip
         wall_s = time.perf_counter() - started
     finally:
-        emulator.terminate()  # SIGTERM: honoured where a background job's Ctrl-C is ignored
-        try:
-            emulator.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            emulator.kill()
-            emulator.wait()
+        emulated_rig.stop(emulator)
     said = next((line for line in log.read_text().splitlines() if line.startswith("hand: ")), "")
     return {
         "run": str(run_dir),

@@ -1,11 +1,12 @@
-"""The camera benchmark never leaves its emulator running: one that ignores Ctrl-C (as a child of a
-script's background job does) is killed after the grace period, and the benchmark says so."""
+"""The benchmarks that drive `twin emulate rig` (camera_bridge, identification_hardware) never leave it
+running: one that ignores Ctrl-C (as a child of a script's background job does) is killed after the grace
+period, and the benchmark says so."""
 
 import signal
 import subprocess
 import sys
 
-from benchmarks.camera_bridge import _stop
+from benchmarks.emulated_rig import stop as _stop
 
 
 def test_an_emulator_that_ignores_ctrl_c_is_killed_after_the_grace(capsys):

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import emulated_rig
+
 DRAW_SEED = 2042
 """2031 was looked at while the squeeze statistic was chosen, 2032 while a failed twin simulation was made
 a missing point, 2033 before a placement square was tried. 2034 scored that square (median 8.0 %, max
@@ -228,39 +230,19 @@ def _emulated_run(name: str, scratch: Path) -> dict:
     foam = get_object(name)
     rig = scratch / f"rig-{name}" / "rig.toml"
     rig.parent.mkdir(parents=True, exist_ok=True)
-    twin = [sys.executable, "-m", "twin.cli"]
-    emulator = subprocess.Popen(
-        [
-            *twin,
-            "emulate",
-            "rig",
-            "--no-cameras",
-            "--object",
-            name,
-            "--rig-file",
-            str(rig),
-            "--duration",
-            "60",
-        ],
-        cwd=rig.parent,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
+    emulator = emulated_rig.start(
+        rig, rig.parent / "emulator.log", "--no-cameras", "--object", name, cwd=rig.parent
     )
     try:
-        for line in emulator.stdout:
-            if line.startswith("ready"):
-                break
         run_dir = scratch / f"hw-{name}"
         shutil.rmtree(run_dir, ignore_errors=True)  # a wall-time run: never reused from an earlier one
         subprocess.run(
-            [*twin, "run", "compress", "--backend", "hardware", "--rig", str(rig),
+            [*emulated_rig.TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig),
              "--duration", str(DURATION_S), "--out", str(run_dir), "--no-progress"],
             check=True, capture_output=True, cwd=rig.parent,
         )  # fmt: skip
     finally:
-        emulator.terminate()
-        emulator.wait(timeout=30)
+        emulated_rig.stop(emulator)  # Ctrl-C, then kill after a grace: a busy machine never loses the table
     from twin.sim.foam import FoamParams
 
     description = FoamParams(name=name, shape=foam.shape, size_m=foam.size_m, young_pa=4e4, poisson=0.3)

@@ -12,14 +12,21 @@ KEY a hash of those files and the Python version, so a changed pin builds a new 
 (the suite's xdist workers build it once), in a temporary directory renamed into place only when complete
 and importable: a failed or interrupted build leaves nothing a later run trusts. $TWIN_LEROBOT_PYTHON,
 where set, names the interpreter to use instead, and nothing is built. `python -m tests.export.lerobot_env`
-builds it and prints its interpreter."""
+builds it and prints its interpreter.
 
+Each use stamps the environment (`.used`); an environment of another key left unused for PRUNE_AFTER_DAYS
+is removed (1.5 GB each: a pin changed months ago would otherwise keep its old build for ever), unless
+another process holds its lock."""
+
+import contextlib
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from filelock import FileLock, Timeout
@@ -34,6 +41,9 @@ IMPORTS = (
 """What a built environment must import before it is moved into place."""
 BUILD_TIMEOUT_S = 1800.0
 """How long a build (or a wait on another worker's) may take: ~130 MB of downloads and ~1.5 GB unpacked."""
+PRUNE_AFTER_DAYS = 30.0
+"""An environment of another key unused this long is removed when this one is used (another checkout that
+still pins it builds it again on its first use: minutes, not lost data)."""
 
 
 class BuildError(RuntimeError):
@@ -70,6 +80,8 @@ def lerobot_python() -> Path:
     root, name = cache_root(), key()
     env = root / name
     if env.is_dir():  # only a complete build is ever renamed to this name
+        _stamp(env)
+        prune_stale(root, keep=name)
         return interpreter(env)
     root.mkdir(parents=True, exist_ok=True)
     try:
@@ -85,7 +97,41 @@ def lerobot_python() -> Path:
                     shutil.rmtree(partial, ignore_errors=True)
     except Timeout:
         raise BuildError(f"waited {BUILD_TIMEOUT_S:.0f} s for another build of {env}") from None
+    _stamp(env)
+    prune_stale(root, keep=name)
     return interpreter(env)
+
+
+def _stamp(env: Path) -> None:
+    """Mark `env` as used now (what prune_stale reads); a read-only cache just goes unmarked."""
+    with contextlib.suppress(OSError):
+        (env / ".used").touch()
+
+
+def prune_stale(root: Path, keep: str, older_than_days: float = PRUNE_AFTER_DAYS) -> list[Path]:
+    """Remove the environments under `root` other than `keep` whose last use (their `.used` stamp, else the
+    directory itself) is older than `older_than_days`, skipping any whose lock another process holds; the
+    removed paths. Only names a build makes (16 hex digits) are touched."""
+    removed = []
+    cutoff = time.time() - older_than_days * 86400.0
+    for env in sorted(root.iterdir()) if root.is_dir() else []:
+        if env.name == keep or not env.is_dir() or not re.fullmatch(r"[0-9a-f]{16}", env.name):
+            continue
+        stamp = env / ".used"
+        try:
+            last_used = (stamp if stamp.exists() else env).stat().st_mtime
+        except OSError:
+            continue
+        if last_used >= cutoff:
+            continue
+        try:
+            with FileLock(root / f"{env.name}.lock", timeout=0):
+                shutil.rmtree(env, ignore_errors=True)
+                (root / f"{env.name}.build.log").unlink(missing_ok=True)
+        except Timeout:  # in use by another process right now
+            continue
+        removed.append(env)
+    return removed
 
 
 def _build(env: Path, log: Path) -> None:

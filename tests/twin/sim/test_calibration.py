@@ -128,6 +128,30 @@ def test_a_foam_found_in_no_cache_is_calibrated_at_first_use_stored_and_read_bac
     build_model(foam)  # and it compiles
 
 
+def test_both_presets_of_a_foam_share_one_fem_solve_and_nothing_else_does(tmp_path, monkeypatch):
+    """The FEM depends on the geometry, the Poisson ratio and the load, not on the flex: the second preset
+    of a scan reads the first's FEM back from the cache (a scan's solve takes minutes), while another nu,
+    size or scan is solved anew; a damaged stored solve is solved again."""
+    monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(calibration, "FEM_LEVELS_M", ((0.02, 0.03), (0.016, 0.03)))  # coarse: seconds
+    surface = _box_stl(tmp_path / "box.stl", (50.0, 55.0, 60.0))
+    fast = mesh_object(surface, LIBRARY["block"])
+    faithful = fast.with_overrides(fidelity="faithful")
+    tips = calibration.fingertip_geoms(fast)
+    assert calibration.fingertip_geoms(faithful) == tips
+    force, info = calibration.cached_fem_force_per_pa(fast, tips)
+    assert "reused" not in info and info["dofs"] > 100
+    again, reused = calibration.cached_fem_force_per_pa(faithful, tips)
+    assert reused["reused"] and np.array_equal(again, force) and reused["dofs"] == info["dofs"]
+    other = _box_stl(tmp_path / "other.stl", (50.0, 55.0, 61.0))
+    for changed in (fast.with_overrides(poisson=0.2), mesh_object(other, LIBRARY["block"])):
+        assert calibration.fem_digest(changed, tips) != calibration.fem_digest(fast, tips)
+    (stored,) = (calibration.cache_dir() / "fem").glob("*.json")
+    stored.write_text(json.dumps({"force_per_pa_n": [1.0, -1.0], "info": {}}))
+    solved, fresh = calibration.cached_fem_force_per_pa(faithful, tips)
+    assert "reused" not in fresh and solved == pytest.approx(force, rel=1e-9)
+
+
 def _box_stl(path, size_mm):
     """A closed box surface (12 triangles, outward), as binary STL."""
     import meshio

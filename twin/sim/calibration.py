@@ -93,18 +93,24 @@ def digest(foam: FoamParams) -> str:
     key: dict[str, Any] = {
         "version": CALIBRATION_VERSION,
         "mujoco": mujoco.__version__,
-        "shape": foam.shape,
-        "size_mm": [round(s * 1e3, 2) for s in foam.size_m],
-        "poisson": round(foam.poisson, 4),
+        **_geometry_key(foam),
         "fidelity": foam.fidelity,
         "dof": foam.dof,
         "resolution": foam.resolution,
     }
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def _geometry_key(foam: FoamParams) -> dict[str, Any]:
+    """The object's shape and size (a mesh: its file's bytes and scale) and its Poisson ratio, as digests
+    key them."""
+    key: dict[str, Any] = {"shape": foam.shape, "poisson": round(foam.poisson, 4)}
     if foam.shape == "mesh":
         key["mesh_sha256"] = hashlib.sha256(Path(foam.mesh_file).read_bytes()).hexdigest()
         key["mesh_scale_m"] = foam.mesh_scale_m
-        key.pop("size_mm")
-    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    else:
+        key["size_mm"] = [round(s * 1e3, 2) for s in foam.size_m]
+    return key
 
 
 @functools.cache
@@ -483,15 +489,10 @@ def fem_digest(foam: FoamParams, tips: list[TipGeom]) -> str:
         "depths_m": DEPTHS_M,
         "scikit_fem": _version("scikit-fem"),
         "gmsh": _version("gmsh"),
-        "shape": foam.shape,
-        "size_mm": [round(s * 1e3, 2) for s in foam.size_m],
+        **_geometry_key(foam),
         "placement_mm": [round(p * 1e3, 2) for p in foam.placement_m],
-        "poisson": round(foam.poisson, 4),
         "tips": [[t.name, t.type, *(round(v, 7) for v in (*t.size, *t.pos_m, *t.quat))] for t in tips],
     }
-    if foam.shape == "mesh":
-        key["mesh_sha256"] = hashlib.sha256(Path(foam.mesh_file).read_bytes()).hexdigest()
-        key["mesh_scale_m"] = foam.mesh_scale_m
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
 
 

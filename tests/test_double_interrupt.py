@@ -74,3 +74,39 @@ def test_an_interrupt_in_a_deferred_block_waits_for_its_end_whichever_thread_the
             time.sleep(0.05)  # delivered here at the latest
         assert reached == ["inner", "outer"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_second_ctrl_c_while_the_devices_are_released_still_names_the_run(tmp_path: Path):
+    """The race the gap-0.05 case hit once on a loaded host: the status was written, then the second
+    Ctrl-C landed in the backend's disconnect, a fresh KeyboardInterrupt without the run directory, and the
+    CLI said 'nothing was written' of a run marked 'interrupted'."""
+    from twin.experiments.compress import PHASES, CompressController
+
+    from twin.cli import _interrupted
+    from twin.session import run_experiment
+    from twin.sim.backend import SimBackend
+    from twin.sim.foam import LIBRARY
+
+    class Interrupting(CompressController):  # the first Ctrl-C, 0.3 s into the run
+        def __call__(self, reading):
+            if reading.t_s >= 0.3:
+                raise KeyboardInterrupt
+            return super().__call__(reading)
+
+    class InterruptedAgainOnRelease(SimBackend):
+        def disconnect(self) -> None:
+            signal.raise_signal(signal.SIGINT)  # the second Ctrl-C, inside the cleanup
+
+    with pytest.raises(KeyboardInterrupt) as raised:
+        run_experiment(
+            backend=InterruptedAgainOnRelease(LIBRARY["block"], seed=0),
+            controller=Interrupting(),
+            phases=PHASES,
+            duration_s=1.0,
+            run_dir=tmp_path / "run",
+            experiment={"name": "compress"},
+            viewer=False,
+        )
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["status"] == "interrupted"
+    assert getattr(raised.value, "run_dir", None) == tmp_path / "run"
+    assert "is marked 'interrupted'" in _interrupted("run", raised.value)

@@ -15,7 +15,7 @@ import json
 import platform
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -145,90 +145,104 @@ def run_experiment(
     if safety is None:  # the rig's own limits where it declares them (rig.toml), else the datasheet's
         safety = SafetyLayer(backend.safety_limits())
     backend.connect()
-    writer: RunWriter | None = None
-    rig: Rig | None = None
-    result: RigResult | None = None
-    try:
-        metadata = {
-            "software": {"barrett_twin": __version__, "python": platform.python_version()},
-            "command_line": argv if argv is not None else sys.argv,
-            "experiment": experiment,
-            "duration_s": duration_s,
-            "phases": list(phases),
-            "calibration": calibration_tables(),
-            **backend.metadata(),
-        }
-        rrd_path = run_dir / RRD_NAME
-        writer = RunWriter(run_dir, metadata)
+    with _interrupts_name(run_dir):  # the CLI says what the run directory now holds
+        writer: RunWriter | None = None
+        rig: Rig | None = None
+        result: RigResult | None = None
         try:
-            files = backend.write_calibration(run_dir / "calibration")
-            writer.update_metadata(
-                calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
-            )
-            recording = None
-            if viewer:
-                from twin.viz.rerun_log import RunKind, RunRecording
-
-                kind = RunKind(
-                    experiment=str(experiment.get("name", "compress")),
-                    sim=backend.scene() is not None,
-                    stereo=stereo_pipeline is not None,
-                    predict=shape_model is not None,
-                    tactile=backend.tactile is not None,
-                    force_cap_kg=safety.limits.max_fingertip_force_kg,
-                )
-                recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
+            metadata = {
+                "software": {"barrett_twin": __version__, "python": platform.python_version()},
+                "command_line": argv if argv is not None else sys.argv,
+                "experiment": experiment,
+                "duration_s": duration_s,
+                "phases": list(phases),
+                "calibration": calibration_tables(),
+                **backend.metadata(),
+            }
+            rrd_path = run_dir / RRD_NAME
+            writer = RunWriter(run_dir, metadata)
             try:
-                scene_logger = _scene_logger(backend, recording) if recording is not None else None
-                if stereo_pipeline is not None and recording is not None:
-                    log_setup = getattr(recording, "log_stereo_setup", None)
-                    if log_setup is not None:
-                        log_setup(stereo_pipeline.calibration, backend.hand_pose_in_world())
-                rig = Rig(
-                    backend,
-                    writer,
-                    recording,
-                    scene_logger,
-                    phases=phases,
-                    safety=safety,
-                    tactile_calibration=tactile_calibration,
-                    stereo_pipeline=stereo_pipelines,
-                    shape_model=shape_model,
+                files = backend.write_calibration(run_dir / "calibration")
+                writer.update_metadata(
+                    calibration_files={k: str(v.relative_to(run_dir)) for k, v in files.items()}
                 )
-                result = rig.run(controller, duration_s, progress)
-                recoveries = backend.diagnostics().get("hand_recoveries") or []
-                if recording is not None:
-                    for line in result.warnings:  # in the viewer's log too, where the run's curves are
-                        recording.log_text(duration_s, line, level="WARN")
-                    if recoveries:
-                        line = f"the hand driver recovered {len(recoveries)} cycle(s); first: {recoveries[0]}"
-                        recording.log_text(duration_s, line, level="WARN")
-            finally:
-                if recording is not None:
-                    recording.close()
-            for line in result.warnings:
-                writer.warn(line)
-        except BaseException as exc:  # what went wrong is kept even when the run failed
-            with interrupts_deferred():  # a second Ctrl-C waits until the status is on disk
-                error = _close_failed(writer, exc, rig, backend, result, controller)
-            if error is exc:
-                raise
-            raise error from exc
-        with interrupts_deferred():
-            writer.close("complete", metadata=_diagnostics(backend, rig, result, controller))
-    except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
-        if isinstance(exc, KeyboardInterrupt):
-            exc.run_dir = run_dir  # the CLI says what the run directory now holds
-        if writer is not None and not writer.closed:  # interrupted before its status was written
-            with interrupts_deferred(), contextlib.suppress(Exception):
-                _close_failed(writer, exc, rig, backend, result)
-        try:
-            backend.disconnect()
-        except Exception as cleanup:
-            exc.add_note(f"(then disconnecting the devices failed too: {cleanup})")
-        raise
-    backend.disconnect()
+                recording = None
+                if viewer:
+                    from twin.viz.rerun_log import RunKind, RunRecording
+
+                    kind = RunKind(
+                        experiment=str(experiment.get("name", "compress")),
+                        sim=backend.scene() is not None,
+                        stereo=stereo_pipeline is not None,
+                        predict=shape_model is not None,
+                        tactile=backend.tactile is not None,
+                        force_cap_kg=safety.limits.max_fingertip_force_kg,
+                    )
+                    recording = RunRecording(rrd_path, recording_id=run_dir.name, kind=kind)
+                try:
+                    scene_logger = _scene_logger(backend, recording) if recording is not None else None
+                    if stereo_pipeline is not None and recording is not None:
+                        log_setup = getattr(recording, "log_stereo_setup", None)
+                        if log_setup is not None:
+                            log_setup(stereo_pipeline.calibration, backend.hand_pose_in_world())
+                    rig = Rig(
+                        backend,
+                        writer,
+                        recording,
+                        scene_logger,
+                        phases=phases,
+                        safety=safety,
+                        tactile_calibration=tactile_calibration,
+                        stereo_pipeline=stereo_pipelines,
+                        shape_model=shape_model,
+                    )
+                    result = rig.run(controller, duration_s, progress)
+                    recoveries = backend.diagnostics().get("hand_recoveries") or []
+                    if recording is not None:
+                        for line in result.warnings:  # in the viewer's log too, where the run's curves are
+                            recording.log_text(duration_s, line, level="WARN")
+                        if recoveries:
+                            line = (
+                                f"the hand driver recovered {len(recoveries)} cycle(s); "
+                                f"first: {recoveries[0]}"
+                            )
+                            recording.log_text(duration_s, line, level="WARN")
+                finally:
+                    if recording is not None:
+                        recording.close()
+                for line in result.warnings:
+                    writer.warn(line)
+            except BaseException as exc:  # what went wrong is kept even when the run failed
+                with interrupts_deferred():  # a second Ctrl-C waits until the status is on disk
+                    error = _close_failed(writer, exc, rig, backend, result, controller)
+                if error is exc:
+                    raise
+                raise error from exc
+            with interrupts_deferred():
+                writer.close("complete", metadata=_diagnostics(backend, rig, result, controller))
+        except BaseException as exc:  # the run's own error is the one to report, not a second from cleanup
+            if writer is not None and not writer.closed:  # interrupted before its status was written
+                with interrupts_deferred(), contextlib.suppress(Exception):
+                    _close_failed(writer, exc, rig, backend, result)
+            try:
+                backend.disconnect()
+            except Exception as cleanup:
+                exc.add_note(f"(then disconnecting the devices failed too: {cleanup})")
+            raise
+        backend.disconnect()
     return RunOutcome(run_dir, rrd_path, result, "complete", list(result.warnings))
+
+
+@contextlib.contextmanager
+def _interrupts_name(run_dir: Path) -> Iterator[None]:
+    """Any Ctrl-C leaving the block carries the run directory: the first, and a second one that lands
+    while the devices are released (a fresh KeyboardInterrupt, raised inside the cleanup), so the CLI
+    always reads back what run.json holds."""
+    try:
+        yield
+    except KeyboardInterrupt as exc:
+        exc.run_dir = run_dir
+        raise
 
 
 def _load_run_files(

@@ -38,6 +38,7 @@ SECTIONS = (
     "interval_calibration",
     "identifiability",
     "grasp_scatter",
+    "round_tops",
     "nu_from_cameras",
     "identify_speed",
     "shape_network",

@@ -190,3 +190,16 @@ def test_an_object_that_topples_in_the_bench_is_left_uncalibrated_with_the_reaso
     assert calibration.scale_of(at_node).detail["why"] == scale.detail["why"]  # the entry itself: k = 1
     build_model(foam)  # and the scene composes
     build_model(at_node)
+
+
+def test_the_shipped_sphere_fem_is_two_hertz_contacts_in_series():
+    """The FEM the round tops are scored against, checked against analytic mechanics: a rigid flat on a
+    sphere resting on a rigid plate is two Hertz contacts in series, F = 4/3 E* sqrt(R) (d/2)^1.5. The
+    FEM holds the base sideways (the palm's friction), which Hertz does not: it may only read stiffer."""
+    entries = json.loads(calibration.SHIPPED.read_text())["calibrations"].values()
+    sphere = next(e for e in entries if e.get("name") == "sphere")
+    radius_m, nu = sphere["foam"]["size_m"][2] / 2, sphere["foam"]["poisson"]
+    e_star = sphere["reference_young_pa"] / (1 - nu**2)
+    for depth_m, fem_n in zip(calibration.DEPTHS_M, sphere["fem_force_n"], strict=True):
+        hertz_n = 4 / 3 * e_star * np.sqrt(radius_m) * (depth_m / 2) ** 1.5
+        assert 0.0 <= fem_n / hertz_n - 1 <= (0.02 if depth_m == calibration.DEPTHS_M[0] else 0.16)

@@ -379,6 +379,9 @@ class Rig:
         self._recovered = False
         self._behind = False
         """The last hand reading came after a recovered cycle / over a period behind its schedule."""
+        self.hand_loop_behind: list[tuple[float, float]] = []
+        """Hardware: each stretch of hand readings over one period behind the schedule, as (the run time
+        it started, s; the most it lagged, s): where readings and the commands answering them came late."""
         self._recoveries_seen = len(backend.hand.recoveries)
         """The hand's recovered cycles already marked (a read's or a command's: at the next reading)."""
         self._frames_dropped = 0
@@ -582,6 +585,10 @@ class Rig:
             rate = 1.0 / period_s
             text = f"hand loop {1e3 * late_s:.0f} ms behind its {rate:g} Hz schedule: readings are late"
             self._event(t_s, "hand_loop", f"behind its {rate:g} Hz schedule", text)
+            self.hand_loop_behind.append((t_s, late_s))
+        elif behind:
+            start_s, most_s = self.hand_loop_behind[-1]
+            self.hand_loop_behind[-1] = (start_s, max(most_s, late_s))
         elif self._behind and not behind:
             self._event(t_s, "hand_loop", None)
         self._behind = behind

@@ -281,8 +281,8 @@ def _diagnostics(
 ) -> dict[str, Any]:
     """What run.json keeps beside the status, whatever it is (written with it by writer.close, in one
     rewrite): the backend's diagnostics, the reconstruction scores, the procedure's own account of its
-    squeeze (a controller's `run_metadata`, e.g. the compress amplitude it chose) and a finished run's
-    final phase."""
+    squeeze (a controller's `run_metadata`, e.g. the compress amplitude it chose), on hardware where the
+    hand loop fell over one period behind its schedule, and a finished run's final phase."""
     items = dict(backend.diagnostics())
     run_metadata = getattr(controller, "run_metadata", None)
     if run_metadata is not None:
@@ -295,6 +295,14 @@ def _diagnostics(
             "readings_at_cap": rig.force_cap_samples.tolist(),
             "times_reached": rig.force_cap_entries.tolist(),
             "fingers": ["F1", "F2", "F3"],
+        }
+    if rig is not None and not backend.is_simulated:  # where a host stall delayed readings and commands
+        behind = rig.hand_loop_behind
+        items["hand_loop"] = {
+            "period_ms": round(1e3 * backend.hand.spec.period_s, 3),
+            "times_behind": len(behind),
+            "longest_behind_ms": round(1e3 * max((late for _, late in behind), default=0.0), 1),
+            "behind_from_s": [round(t_s, 3) for t_s, _ in behind],
         }
     if result is not None:
         items["final_phase"] = result.final_phase

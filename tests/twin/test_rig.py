@@ -139,7 +139,7 @@ def test_a_garbage_tactile_table_is_refused_before_the_hand_is_touched(tmp_path)
 
 
 @pytest.mark.slow
-def test_a_hardware_loop_that_misses_its_rate_says_so(tmp_path):
+def test_a_hardware_loop_that_misses_its_rate_says_so(tmp_path, capsys):
     """A procedure too slow for 30 Hz (60 ms a reading): the run completes, and run.json, the outcome
     and the reader carry one warning line with the rate the loop achieved."""
     with make_hand_emulator("block") as emulator:
@@ -157,3 +157,14 @@ def test_a_hardware_loop_that_misses_its_rate_says_so(tmp_path):
     assert "of 30 Hz" in outcome.warnings[0]
     run = open_run(tmp_path / "run")
     assert run.status == "complete" and run.warnings == outcome.warnings
+    # and where it lagged: one stretch over a period behind (at 60 ms a reading it never catches up),
+    # lagging at least 0.77 s by the end (30 readings of >= 60 ms against a 1 s schedule), from its first
+    # readings on
+    lag = run.metadata["hand_loop"]
+    assert lag["period_ms"] == pytest.approx(1e3 / 30, abs=1e-3) and lag["times_behind"] == 1
+    assert lag["longest_behind_ms"] > 700 and lag["behind_from_s"][0] < 0.5
+    from twin.cli import main
+
+    assert main(["info", str(tmp_path / "run")]) == 0
+    text = " ".join(capsys.readouterr().out.split())  # rich wraps at the terminal's width
+    assert f"behind its schedule 1 time(s), at most {lag['longest_behind_ms']:.0f} ms" in text

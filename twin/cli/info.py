@@ -130,6 +130,12 @@ def _envelope_lines(meta: dict) -> list[str]:
             at = f"{limit:g} kg " if isinstance(limit, int | float) else ""
             lines.append(f"readings at the {at}fingertip-force cap: " + ", ".join(
                 f"{n} {c}" for n, c in zip(names, counts, strict=True)))  # fmt: skip
+    loop = meta.get("hand_loop")
+    if isinstance(loop, dict) and isinstance(loop.get("times_behind"), int) and loop["times_behind"] > 0:
+        longest, period = loop.get("longest_behind_ms"), loop.get("period_ms")
+        if isinstance(longest, int | float) and isinstance(period, int | float):
+            lines.append(f"hand loop: over one period ({period:.1f} ms) behind its schedule "
+                         f"{loop['times_behind']} time(s), at most {longest:.0f} ms")  # fmt: skip
     return lines
 
 

@@ -40,6 +40,7 @@ SECTIONS = (
     "grasp_scatter",
     "round_tops",
     "nu_from_cameras",
+    "nu_reference",
     "identify_speed",
     "shape_network",
     "sweep_throughput",

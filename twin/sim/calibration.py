@@ -581,9 +581,12 @@ def bench_force_n(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -
     return _bench(foam, tips, modulus_scale)[0]
 
 
-def _bench(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> tuple[np.ndarray, float]:
+def _bench(
+    foam: FoamParams, tips: list[TipGeom], modulus_scale: float, vertices: list[np.ndarray] | None = None
+) -> tuple[np.ndarray, float]:
     """bench_force_n's forces, and how far (m) the foam's centre moved across the palm meanwhile: a
-    round-bottomed object may topple off the tips' line, where the FEM holds its base."""
+    round-bottomed object may topple off the tips' line, where the FEM holds its base. `vertices`, where
+    given, gets the flex's vertex positions (n, 3) once settled and at the end of each depth's hold."""
     model = bench_model(foam, tips, modulus_scale)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -592,6 +595,8 @@ def _bench(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> tuple
     for _ in range(round(SETTLE_S / dt)):
         mujoco.mj_step(model, data)
     tip_ids = {model.geom(t.name).id for t in tips}
+    if vertices is not None:
+        vertices.append(data.flexvert_xpos.copy())
     probe = bench_model(foam, tips, modulus_scale, probe=True)
     seen = mujoco.MjData(probe)
     seen.qpos[:], seen.mocap_pos[:] = data.qpos, data.mocap_pos
@@ -619,6 +624,8 @@ def _bench(foam: FoamParams, tips: list[TipGeom], modulus_scale: float) -> tuple
                         total += fz if con.geom[0] in tip_ids else -fz
                 samples.append(-total)  # the foam pushes the tips up
         forces.append(float(np.mean(samples)))
+        if vertices is not None:
+            vertices.append(data.flexvert_xpos.copy())
         previous = depth
     moved_m = float(np.linalg.norm((data.flexvert_xpos.mean(axis=0) - start_m)[:2]))
     return np.array(forces), moved_m

@@ -43,6 +43,9 @@ class IndentationResult:
     dofs: int
     candidates: int
     iterations: tuple[int, ...]
+    vertex_displacement_m: tuple[np.ndarray, ...] = ()
+    """With `keep_displacement`: each depth's displacement (3, vertices) at the mesh's vertices (the
+    indenters impose depths, so it does not scale with E)."""
 
 
 def indentation_force_per_pa(
@@ -52,6 +55,7 @@ def indentation_force_per_pa(
     depths_m: tuple[float, ...],
     reach_m: float = 0.002,
     held_m: float = 0.001,
+    keep_displacement: bool = False,
 ) -> IndentationResult:
     """Press rigid frictionless indenters into `mesh` along -z by each depth from first touch, the object
     resting on a rigid plate at its lowest point (unilateral in z; the nodes within `held_m` of the plate
@@ -89,7 +93,7 @@ def indentation_force_per_pa(
     for k0 in range(0, len(cand), SCHUR_BLOCK):  # a block of right-hand sides at a time: bounded memory
         S[:, k0 : k0 + SCHUR_BLOCK] -= K_rc.T @ lu.solve(K_rc[:, k0 : k0 + SCHUR_BLOCK].toarray())
     S = 0.5 * (S + S.T)
-    forces, supports, iterations = [], [], []
+    forces, supports, iterations, displacements = [], [], [], []
     active = gap <= 0.0
     for depth in depths_m:
         u_c, active, iters = _solve_contact(S, side, gap - depth * moving, active)
@@ -100,6 +104,8 @@ def indentation_force_per_pa(
         forces.append(float(-f[cand[moving]].sum()))
         supports.append(float(f[cand[~moving]].sum() + f[surface_z[seated]].sum()))
         iterations.append(iters)
+        if keep_displacement:
+            displacements.append(u[basis.nodal_dofs])
     return IndentationResult(
         depths_m=tuple(depths_m),
         force_per_pa_n=tuple(forces),
@@ -107,6 +113,7 @@ def indentation_force_per_pa(
         dofs=int(basis.N),
         candidates=len(cand),
         iterations=tuple(iterations),
+        vertex_displacement_m=tuple(displacements),
     )
 
 

@@ -32,11 +32,16 @@ def test_the_fem_squeezes_a_block_as_uniaxial_compression_says(block, monkeypatc
     def plate_above(points_m: np.ndarray) -> np.ndarray:
         return size[2] + 0.001 - points_m[:, 2]  # a plate 1 mm above the top, covering every point
 
-    result = indentation_force_per_pa(mesh, 0.0, plate_above, (0.001, 0.003))
+    result = indentation_force_per_pa(mesh, 0.0, plate_above, (0.001, 0.003), keep_displacement=True)
     assert result.candidates > 3 * block or block == fem.SCHUR_BLOCK  # several blocks where asked
     expected = [size[0] * size[1] * d / size[2] for d in (0.001, 0.003)]
     assert result.force_per_pa_n == pytest.approx(expected, rel=1e-6)
     assert result.support_per_pa_n == pytest.approx(result.force_per_pa_n, rel=1e-6)
+    # and the field: every vertex moves down in proportion to its height, none sideways
+    for depth, u in zip((0.001, 0.003), result.vertex_displacement_m, strict=True):
+        assert u.shape == (3, len(mesh.points_m))
+        assert u[2] == pytest.approx(-depth * mesh.points_m[:, 2] / size[2], abs=1e-9)
+        assert np.abs(u[:2]).max() < 1e-9
 
 
 def test_a_stiffer_poisson_ratio_pushes_back_harder_and_force_grows_with_depth():

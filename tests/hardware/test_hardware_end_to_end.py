@@ -111,11 +111,22 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert dropped[-1] - dropped[0] == np.sum(np.diff(sequence) - 1)
     assert tactile.t_s[0] < 1.0 and tactile.t_s[-1] > 9.0  # the pads streamed through the whole run
     assert (tmp_path / "hw" / run.metadata["calibration_files"]["tactile_table"]).is_file()
+    assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
+    report = json.loads(twin("compare", "sim", "hw", "--json", cwd=tmp_path).stdout)
+    assert report["mismatches"] == []
+    # Where the host stalled the loop by over two periods the real-time grasp is that stalled loop's, not
+    # the sim's (seen in 1 of 13 runs beside three CPU hogs, and in a suite beside two: a 117 ms stall at
+    # 8.45 s, and the thumb lost the block). Then the run must say so, in run.json (issue 37: a test
+    # asserts what the code answers for, not what a loaded host achieves); else the physics must agree.
+    lag = run.metadata["hand_loop"]
+    if lag["longest_behind_ms"] > 2 * lag["period_ms"]:
+        assert lag["times_behind"] == len(lag["behind_from_s"]) >= 1
+        assert "behind its schedule" in " ".join(twin("info", "hw", cwd=tmp_path).stdout.split())
+        return
     sim_tips = open_run(tmp_path / "sim").stream("tactile").fields["pad_force_n"][-90:, :3].mean(axis=0)
     hw_tips = tactile.fields["pad_force_n"][-90:, :3].mean(axis=0)
     # The same squeeze felt by the same pads; a real-time grasp may settle a little differently.
     assert np.all(hw_tips > 0.5) and hw_tips.sum() == pytest.approx(sim_tips.sum(), rel=0.25)
-    assert stream_mismatches(tmp_path / "sim", tmp_path / "hw") == []
     agreement = position_agreement(tmp_path / "sim", tmp_path / "hw")
     # Within 2 % of the travel everywhere but during the grasp (first contact to the compression),
     # where one 33 ms sample of timing jitter at 12000 counts/s is 400 counts (3.2 %) by itself and a
@@ -131,8 +142,6 @@ def test_hardware_run_matches_the_sim_run(emulated_rig: Path, tmp_path: Path):
     assert np.all(settled.rms_error_counts / settled.travel_counts < 0.03), settled
     assert np.all(agreement.rms_error_counts / agreement.travel_counts < 0.04), agreement
     assert abs(agreement.lag_s) < 0.3
-    report = json.loads(twin("compare", "sim", "hw", "--json", cwd=tmp_path).stdout)
-    assert report["mismatches"] == []
     assert report["max_relative_error_outside_contact"] == pytest.approx(settled.max_relative_error)
 
 

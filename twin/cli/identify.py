@@ -190,7 +190,7 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
     pairs: the tolerated range, and what the cameras would add."""
     from dataclasses import replace
 
-    from twin.sim.poisson import NO_PAIRS, poisson_for_modulus
+    from twin.sim.poisson import NO_PAIRS, REFERENCE_CAVEAT, poisson_for_modulus
 
     tolerated = args.tolerances.poisson
     unmeasured = {
@@ -219,7 +219,7 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
             f"the two stereo pairs read nu {read.poisson:.3f} ({low:.3f}-{high:.3f}, 95 %"
             f"{', cut to the Poisson ratios simulated' if beyond else ''}); the modulus simulations still "
             f"draw the tolerated {tolerated[0]:g}-{tolerated[1]:g} (--poisson-from-cameras draws within "
-            "the reading)"
+            f"the reading); {REFERENCE_CAVEAT}"
         )
         return read.to_json() | {"drawn_range": list(tolerated), "narrowed": False}
     if said.note:

@@ -39,6 +39,11 @@ JOINT_E_PA = (28e3, 40e3, 57e3)
 DURATION_S = 8.0
 """Sim time of a twin's run: the grasp is balanced by 2.6-4.5 s on the fast block, a trough follows 2 s
 later (twin.vision.strain_record.TROUGHS)."""
+REFERENCE_CAVEAT = (
+    "the twin's nu, not yet the material's: against an FEM the fast foam bulges less than the material "
+    "(docs/identification.md; BENCHMARKS.md, The Poisson ratio's reference)"
+)
+"""What a read says of itself until the twin's bulge is calibrated (benchmarks/nu_reference.py)."""
 Y_CLIP_M = 0.01
 """The y placement read is clipped to this (beyond it the hand grasps another object)."""
 
@@ -216,6 +221,7 @@ class PoissonRead:
             "(twin.sim.poisson; interval: the strains' noise, twin.vision.lateral_strain.STRAIN_NOISE, and "
             "the grid fit's residuals, linearised, then cut to the simulated Poisson ratios "
             f"{SIM_POISSON[0]:g}-{SIM_POISSON[-1]:g})",
+            "reference": REFERENCE_CAVEAT,
         }
 
 

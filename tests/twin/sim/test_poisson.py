@@ -76,6 +76,8 @@ def test_a_read_whose_interval_reaches_beyond_the_simulated_poisson_ratios_is_cu
     above = poisson.PoissonRead(0.35, (0.38, 0.45), 40e3, (30e3, 50e3), (0.0, 0.0), (0.04, -0.12), 12)
     assert above.poisson_95_simulated() == ((0.35, 0.35), True)  # never an inverted interval
     assert wide.to_json()["poisson_ci95"] == [0.2, 0.35] and wide.to_json()["poisson_ci95_beyond_simulated"]
+    # and says whose nu it is until the twin's bulge is calibrated against the material's
+    assert wide.to_json()["reference"].startswith("the twin's nu, not yet the material's")
 
 
 def test_the_cameras_interval_narrows_the_tolerated_poisson_range():

@@ -14,7 +14,6 @@ table is also the grasp's answer to any sphere of that flex modulus.
 
 from __future__ import annotations
 
-import json
 import tempfile
 from pathlib import Path
 
@@ -36,9 +35,12 @@ def deepest_k(entry: dict) -> tuple[float, list[float]]:
 
 def _shipped_sphere() -> dict:
     from twin.sim import calibration
+    from twin.sim.foam import LIBRARY
 
-    entries = json.loads(calibration.SHIPPED.read_text())["calibrations"].values()
-    return next(e for e in entries if e.get("name") == "sphere" and e["foam"]["fidelity"] == "fast")
+    entry = calibration.lookup(LIBRARY["sphere"])
+    if entry is None:
+        raise RuntimeError("the library sphere has no stored calibration: this benchmark's premise is gone")
+    return entry
 
 
 def grasp(young_pa: float, k: float) -> dict:

@@ -201,8 +201,8 @@ def test_the_shipped_sphere_fem_is_two_hertz_contacts_in_series():
     """The FEM the round tops are scored against, checked against analytic mechanics: a rigid flat on a
     sphere resting on a rigid plate is two Hertz contacts in series, F = 4/3 E* sqrt(R) (d/2)^1.5. The
     FEM holds the base sideways (the palm's friction), which Hertz does not: it may only read stiffer."""
-    entries = json.loads(calibration.SHIPPED.read_text())["calibrations"].values()
-    sphere = next(e for e in entries if e.get("name") == "sphere")
+    sphere = calibration.lookup(LIBRARY["sphere"])
+    assert sphere is not None and sphere["name"] == "sphere"
     radius_m, nu = sphere["foam"]["size_m"][2] / 2, sphere["foam"]["poisson"]
     e_star = sphere["reference_young_pa"] / (1 - nu**2)
     for depth_m, fem_n in zip(calibration.DEPTHS_M, sphere["fem_force_n"], strict=True):

@@ -9,10 +9,9 @@ from __future__ import annotations
 import shutil
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from twin.hardware.bh262.hand import BH8SerialHand
-from twin.hardware.cameras.driver import StereoCapture
 from twin.hardware.pps.driver import PPSTactile
 from twin.hardware.rig_config import STEREO_CALIBRATION, RigConfig
 
@@ -22,6 +21,9 @@ from twin.interface.errors import DeviceError, DeviceNotConfiguredError
 from twin.interface.hand_spec import HandConfig, hand_device_spec
 from twin.interface.specs import DeviceSpec
 from twin.safety import SafetyLimits
+
+if TYPE_CHECKING:
+    from twin.hardware.cameras.driver import StereoCapture
 
 
 class WallClock(Clock):
@@ -103,7 +105,11 @@ class HardwareBackend(Backend):
             from twin.vision.calibration import StereoCalibration  # only a rig with cameras needs it
 
             StereoCalibration.load(stereo_file)
-        self.stereo = None if self.config.stereo is None else StereoCapture(self.config.stereo, self._clock)
+        self.stereo: StereoCapture | None = None
+        if self.config.stereo is not None:  # OpenCV is imported only by a rig with cameras
+            from twin.hardware.cameras.driver import StereoCapture
+
+            self.stereo = StereoCapture(self.config.stereo, self._clock)
         port = self.config.hand_port
         if port is None:
             self.hand: Hand = UnconfiguredHand(self.config.hand)
@@ -146,7 +152,7 @@ class HardwareBackend(Backend):
             meta["hand_driver"] = self.hand.metadata()
         if self.tactile is not None:
             meta["tactile_driver"] = self.tactile.metadata()
-        if isinstance(self.stereo, StereoCapture):
+        if self.stereo is not None:
             meta["stereo_driver"] = self.stereo.metadata()
         return meta
 
@@ -157,6 +163,6 @@ class HardwareBackend(Backend):
             out["hand_recoveries"] = list(self.hand.recoveries)
         if self.tactile is not None:
             out["tactile_link"] = self.tactile.diagnostics()
-        if isinstance(self.stereo, StereoCapture):
+        if self.stereo is not None:
             out["stereo_capture"] = self.stereo.diagnostics()
         return out

@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from twin.hardware.bh262.driver import PortSettings
-from twin.hardware.cameras.driver import BACKENDS, StereoCaptureConfig
+from twin.hardware.cameras.config import BACKENDS, StereoCaptureConfig
 
 from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig

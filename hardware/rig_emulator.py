@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from twin.hardware.bh262.emulator import HandEmulator, make_hand_emulator
 from twin.hardware.bh262.firmware import RealTimeTwin
-from twin.hardware.cameras.emulator import CameraEmulator
 from twin.hardware.pps.emulator import FaultPlan as TactileFaultPlan
 from twin.hardware.pps.emulator import TactileEmulator
 from twin.hardware.rig_config import rig_toml
 
 if TYPE_CHECKING:
+    from twin.hardware.cameras.emulator import CameraEmulator
+
     from twin.sim.foam import FoamParams
 
 
@@ -67,7 +68,11 @@ class RigEmulator:
             faults=tactile_plan,
             on_event=on_event,
         )
-        self.cameras = CameraEmulator(self.hand.twin, seed=seed, on_event=on_event) if cameras else None
+        self.cameras: CameraEmulator | None = None
+        if cameras:  # OpenCV (the frames' JPEG) is imported only by a rig with cameras
+            from twin.hardware.cameras.emulator import CameraEmulator
+
+            self.cameras = CameraEmulator(self.hand.twin, seed=seed, on_event=on_event)
         self.camera_addresses: tuple[str, str] | None = None
         """The left and right stream URLs once served (None without cameras)."""
         self.baud = baud
@@ -90,12 +95,13 @@ class RigEmulator:
             self.camera_addresses = self.cameras.serve_http(0 if port == 0 else port + 1)
         return hand, tactile
 
-    def write_rig_file(self, path: Path | None) -> Path:
+    def write_rig_file(self, path: Path | str | None) -> Path:
         """The twin's tactile (and stereo) calibration beside a rig.toml that names every port; returns
         the rig.toml."""
         if path is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="twin-rig-")
             path = Path(self._tmp.name) / "rig.toml"
+        path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         files = self.hand.twin.backend.tactile.sensor.write_files(path.parent / "calibration")
         table = files["tactile_table"].relative_to(path.parent)

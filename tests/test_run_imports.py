@@ -66,3 +66,23 @@ def test_the_twins_own_simulations_write_no_recording_and_import_no_rerun(tmp_pa
     assert "twin.rig" in modules and _loaded(modules, ("rerun", "twin.viz")) == []
     assert not (tmp_path / "run" / "run.rrd").exists()
     assert (tmp_path / "run" / "run.json").is_file()
+
+
+def test_a_hardware_run_without_cameras_imports_no_opencv(tmp_path: Path):
+    """The emulated rig without cameras, its rig file read and a short hardware run through the bridge:
+    OpenCV is the cameras' (their capture and their JPEG frames), so neither side loads it."""
+    script = (
+        "from twin.cli import main\n"
+        "from twin.hardware.rig_emulator import RigEmulator\n"
+        "with RigEmulator('block', seed=0) as emulator:\n"
+        "    emulator.serve('pty')\n"
+        "    rig = emulator.write_rig_file('rig/rig.toml')\n"
+        "    status = main(['run', 'compress', '--backend', 'hardware', '--rig', str(rig), "
+        "'--duration', '0.5', '--out', 'run', '--no-progress'])\n"
+        "assert status == 0, status"
+    )
+    modules = _modules_after(script, tmp_path)
+    assert "twin.hardware.backend" in modules and "twin.hardware.pps.driver" in modules  # it ran the rig
+    assert json.loads((tmp_path / "run" / "run.json").read_text())["status"] == "complete"
+    # OpenGL is MuJoCo's own here, as in the API run above: the emulator's twin is imported as a library.
+    assert _loaded(modules, ("twin.vision", "cv2", "scipy.ndimage", "skimage")) == []

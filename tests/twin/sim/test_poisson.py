@@ -1,14 +1,17 @@
 """The twin's cheap observation of the two-pair strains (cameras read at rest and at the troughs) reads
 what a recorded run of the same twin reads: the grid of simulations and the run share one statistic."""
 
+import argparse
 from pathlib import Path
 
 import pytest
 
 from tests.once import made_once
 from twin import api
-from twin.sim import poisson
+from twin.cli.identify import _poisson
+from twin.sim import bulge, poisson
 from twin.sim.foam import LIBRARY
+from twin.sim.modulus import Tolerances
 
 TRUTH = poisson.twin_foam(LIBRARY["block"], 35e3, 0.3, (0.001, -0.002))
 """The fast block at E 35 kPa, nu 0.3, placed 1 mm / -2 mm off centre."""
@@ -43,27 +46,32 @@ def test_the_twins_observation_matches_a_recorded_two_pair_run(two_pair_run: Pat
 
 @pytest.mark.slow
 def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(two_pair_run: Path):
-    """`twin identify`'s read of nu (twin.sim.poisson.poisson_for_modulus, read_run) on a recorded
-    two-pair run of the fast block at nu 0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval
-    holds the truth and is under +-0.06 wide (the prior's range is +-0.075); the placement is read within
-    0.5 mm in x."""
-    said = poisson.poisson_for_modulus(two_pair_run, LIBRARY["block"], (0.2, 0.35), narrow=True)
-    read = said.read
-    assert read is not None and said.failed is None, said
-    low, high = read.poisson_95
-    assert low < 0.3 < high and high - low < 0.12, read
-    assert read.placement_m[0] == pytest.approx(0.001, abs=5e-4), read
-    assert read.young_95_pa[0] < read.young_pa < read.young_95_pa[1] and read.simulations == 12
-    # What `twin identify --poisson-from-cameras` and the camera benchmark then draw: the tolerance cut
-    # to the read's interval, the same function for both.
-    assert said.drawn == poisson.drawn_poisson_range((0.2, 0.35), read.poisson_95)[0]
-    assert 0.2 <= said.drawn[0] < 0.3 < said.drawn[1] <= 0.35
-    # The results file's interval stays within the Poisson ratios the twin simulated, and says whether
-    # the linearised read reached beyond them.
-    recorded = read.to_json()
-    assert recorded["poisson_ci95_linearised"] == [low, high]
-    assert recorded["poisson_ci95"] == [max(low, 0.2), min(high, 0.35)]
-    assert recorded["poisson_ci95_beyond_simulated"] == (low < 0.2 or high > 0.35)
+    """`twin identify --poisson-from-cameras`'s read of nu (its own code: twin.cli.identify._poisson, on
+    twin.sim.poisson.poisson_for_modulus and read_run) on a recorded two-pair run of the fast block at nu
+    0.3, E 35 kPa, 1 mm / -2 mm off centre: nu's 95 % interval holds the truth and is under +-0.06 wide
+    (the prior's range is +-0.075); the placement is read within 0.5 mm in x; the modulus simulations
+    then draw the tolerance cut to the read's interval; and the read is mapped to the material's nu."""
+    args = argparse.Namespace(
+        run_dir=two_pair_run, tolerances=Tolerances(), poisson_from_cameras=True, no_progress=True
+    )
+    notes: list[str] = []
+    recorded = _poisson(args, LIBRARY["block"], notes)
+    low, high = recorded["poisson_ci95_linearised"]
+    assert low < 0.3 < high and high - low < 0.12, recorded
+    assert recorded["placement_m"][0] == pytest.approx(0.001, abs=5e-4), recorded
+    young_low, young_high = recorded["young_from_strains_ci95_pa"]
+    assert young_low < recorded["young_from_strains_pa"] < young_high and recorded["simulations"] == 12
+    # What the modulus simulations then draw: the tolerance cut to the read's interval (the same function
+    # for the CLI and the camera benchmark).
+    drawn = poisson.drawn_poisson_range((0.2, 0.35), (low, high))[0]
+    assert recorded["narrowed"] and tuple(recorded["drawn_range"]) == drawn == args.tolerances.poisson
+    assert 0.2 <= drawn[0] < 0.3 < drawn[1] <= 0.35
+    # The read as a material's nu, through the block's shipped bulge map (twin.sim.bulge): the map
+    # applied to the twin's value, and the printout says whose nu is whose.
+    material, mapped = recorded["material"], bulge.lookup(LIBRARY["block"])
+    assert material["poisson"] == pytest.approx(mapped.material_poisson(recorded["poisson"]), abs=1e-4)
+    assert material["within_materials"]
+    assert any("is the twin's: a material bulging as the twin did has nu" in n for n in notes), notes
 
 
 def test_a_read_whose_interval_reaches_beyond_the_simulated_poisson_ratios_is_cut_to_them():
@@ -76,8 +84,9 @@ def test_a_read_whose_interval_reaches_beyond_the_simulated_poisson_ratios_is_cu
     above = poisson.PoissonRead(0.35, (0.38, 0.45), 40e3, (30e3, 50e3), (0.0, 0.0), (0.04, -0.12), 12)
     assert above.poisson_95_simulated() == ((0.35, 0.35), True)  # never an inverted interval
     assert wide.to_json()["poisson_ci95"] == [0.2, 0.35] and wide.to_json()["poisson_ci95_beyond_simulated"]
-    # and says whose nu it is until the twin's bulge is calibrated against the material's
-    assert wide.to_json()["reference"].startswith("the twin's nu, not yet the material's")
+    # and says whose nu it is: the twin's, and the material's where the bulge map gave it
+    assert wide.to_json()["reference"].startswith("the twin's nu") and wide.to_json()["material"] is None
+    assert "not mapped to the material's" in wide.material_said()
 
 
 def test_the_cameras_interval_narrows_the_tolerated_poisson_range():

@@ -14,7 +14,8 @@ to the material's through two lines: the material whose FEM ratio equals the twi
 
 The map assumes the flex's bulge is off the material's by the same in the grasp as under this load (the
 grasp was not compared with an FEM: it also holds the object's y sides). Cached like k: shipped for
-the library foams (bulge_maps.json), made at first use (4 solves, ~10-30 s) for anything else.
+the library foams (bulge_maps.json), made at first use for anything else (two FEM solves and two bench
+runs: 12-30 s on 2 cores for the library's shapes; a scan first needs its k, 40-60 s in all).
 """
 
 from __future__ import annotations

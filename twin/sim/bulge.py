@@ -80,6 +80,8 @@ class BulgeMap:
         """A twin's read of nu as the material's (results-file form): the value and its 95 % interval
         mapped, the interval cut to MATERIAL_POISSON. Where the value lies outside that, no material of
         this shape bulges as the twin did: the read has no material meaning, and no interval is given."""
+        if not self.fem_slope > 0:
+            return {"unavailable": "the FEM's bulge does not grow with nu on this shape: it does not tell nu"}
         value = self.material_poisson(twin_poisson)
         low, high = MATERIAL_POISSON
         within = bool(low <= value < high)

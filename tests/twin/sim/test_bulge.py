@@ -59,6 +59,8 @@ def test_the_map_reads_a_twins_nu_as_the_material_whose_fem_bulge_is_the_twins()
     beyond = bulge.BulgeMap("fast", (0.2, 0.35), (0.06, 0.08), (0.17, 0.32), 0.006, {})
     said = beyond.equivalent(0.3, (0.25, 0.35))
     assert not said["within_materials"] and said["poisson_ci95"] is None and said["poisson"] > 0.5
+    flat = bulge.BulgeMap("fast", (0.2, 0.35), (0.06, 0.06), (0.17, 0.32), 0.006, {})
+    assert "does not tell nu" in flat.equivalent(0.3, (0.25, 0.35))["unavailable"]
 
 
 def test_a_map_is_made_at_first_use_stored_and_read_back(tmp_path, monkeypatch):

@@ -190,7 +190,7 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
     pairs: the tolerated range, and what the cameras would add."""
     from dataclasses import replace
 
-    from twin.sim.poisson import NO_PAIRS, poisson_for_modulus
+    from twin.sim.poisson import NO_PAIRS, REFERENCE_CAVEAT, poisson_for_modulus
 
     tolerated = args.tolerances.poisson
     unmeasured = {
@@ -219,10 +219,10 @@ def _poisson(args: argparse.Namespace, description, notes: list[str]) -> dict:  
             f"the two stereo pairs read nu {read.poisson:.3f} ({low:.3f}-{high:.3f}, 95 %"
             f"{', cut to the Poisson ratios simulated' if beyond else ''}); the modulus simulations still "
             f"draw the tolerated {tolerated[0]:g}-{tolerated[1]:g} (--poisson-from-cameras draws within "
-            f"the reading); that is the twin's nu: {read.material_said()}"
+            f"the reading); {REFERENCE_CAVEAT}"
         )
         return read.to_json() | {"drawn_range": list(tolerated), "narrowed": False}
-    notes.append(f"the cameras' nu {read.poisson:.3f} is the twin's: {read.material_said()}")
+    notes.append(f"the two stereo pairs read nu {read.poisson:.3f}: {REFERENCE_CAVEAT}")
     if said.note:
         notes.append(said.note)
     args.tolerances = replace(args.tolerances, poisson=said.drawn)

@@ -137,8 +137,9 @@ def run(quick: bool = False) -> dict:
     objects = OBJECTS[:1] if quick else OBJECTS
     rows = [measure(name, fidelity) for name in objects for fidelity in FIDELITIES]
     cases = GRASP_CASES[:1] if quick else GRASP_CASES
-    # Each case in a fresh process: its cameras render (EGL) where gmsh, which the FEM above ran in this
-    # process, has not been (the two in one process crashed it: a segfault, 2026-11-28).
+    # Each case in a fresh process: run after the FEM and benches above in this one, the first case's
+    # camera run segfaulted (2026-11-28; gmsh and EGL in one process suspected, not shown); spawned, the
+    # same cases ran (each alone, in its own interpreter, they had too).
     spawn = multiprocessing.get_context("spawn")
     with (
         tempfile.TemporaryDirectory(prefix="twin-nu-reference-") as scratch,

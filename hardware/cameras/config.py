@@ -44,7 +44,7 @@ _FLEA2 = StereoConfig()
 
 @dataclass(frozen=True, kw_only=True)
 class StereoCaptureConfig:
-    """Sources, backend, sizes and timeout of the stereo capture (local to this driver for now)."""
+    """Sources, backend, sizes and timeout of the stereo capture (hardware/cameras/driver.py)."""
 
     left: Source
     right: Source

@@ -18,7 +18,8 @@ every retry, which is not a lost frame each time.
 
 The grabs run on a worker thread so a camera that blocks inside `grab()` cannot hang `read()`: it
 fails after the timeout with a one-line error naming the camera. The capture config
-(`StereoCaptureConfig`) takes its frame defaults from twin.interface.stereo_spec.StereoConfig.
+(`StereoCaptureConfig`, hardware/cameras/config.py: read without OpenCV) takes its frame defaults from
+twin.interface.stereo_spec.StereoConfig.
 This module never imports the simulator.
 """
 

@@ -40,7 +40,7 @@ DURATION_S = 8.0
 """Sim time of a twin's run: the grasp is balanced by 2.6-4.5 s on the fast block, a trough follows 2 s
 later (twin.vision.strain_record.TROUGHS)."""
 REFERENCE_CAVEAT = (
-    "the twin's nu, not checked as the material's: read through the fast twin, a foam that bulges as an "
+    "the twin's nu, not the material's: read through the fast twin, a foam that bulges as an "
     "FEM does (the faithful block) came out 0.09 low to 0.05 high, its interval holding the truth on 2 of 5 "
     "runs (BENCHMARKS.md, The Poisson ratio's reference)"
 )

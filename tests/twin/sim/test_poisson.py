@@ -66,6 +66,10 @@ def test_a_recorded_two_pair_run_reads_its_poisson_ratio_through_the_twin(two_pa
     drawn = poisson.drawn_poisson_range((0.2, 0.35), (low, high))[0]
     assert recorded["narrowed"] and tuple(recorded["drawn_range"]) == drawn == args.tolerances.poisson
     assert 0.2 <= drawn[0] < 0.3 < drawn[1] <= 0.35
+    # The results file's interval stays within the Poisson ratios the twin simulated, and says whether
+    # the linearised read reached beyond them.
+    assert recorded["poisson_ci95"] == [max(low, 0.2), min(high, 0.35)]
+    assert recorded["poisson_ci95_beyond_simulated"] == (low < 0.2 or high > 0.35)
     assert recorded["reference"] == poisson.REFERENCE_CAVEAT
     assert any(poisson.REFERENCE_CAVEAT in n for n in notes), notes
 

@@ -59,7 +59,8 @@ def to_markdown(results: dict) -> str:
         "## Scans of any density become calibrated foams (target: forces within 5 % of each other, <= 30 s)",
         "",
         "A scanner-like egg (64 x 52 x 44 mm, `benchmarks/scan_foams.py`) at three densities, each made a "
-        "foam and calibrated at first use in a fresh cache (the FEM and the fit at nu = 0.2 and 0.35): "
+        "foam and calibrated at first use in a fresh cache (the FEM and the fit at nu = 0.2, then at 0.35 "
+        "where one k fits the first): "
         "*wall*: from the file to the composed scene; *Hausdorff*: the decimated surface against the scan; "
         "forces: the "
         "calibrated twin under the fingertips at 40 kPa, nu 0.3, against the densest scan's.",

@@ -171,7 +171,8 @@ def law_features(foam: FoamParams, law: dict[str, Any]) -> np.ndarray:
 def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
     """k for `foam`: its own calibration if one is stored (the library's ship with the package), its
     shape's law for any other primitive, and for a mesh foam a calibration made now (then stored) at
-    POISSON_NODES, interpolated in the Poisson ratio."""
+    POISSON_NODES, interpolated in the Poisson ratio. A node that one k cannot fit (_trusted) ends it
+    there: the interpolated k would not be applied either, so the next node's FEM would buy nothing."""
     if not _is_preset(foam):
         return Scale(1.0, "uncalibrated", {"why": "a discretization other than its preset's"})
     entry = lookup(foam)
@@ -198,6 +199,8 @@ def scale_of(foam: FoamParams, progress: Progress | None = None) -> Scale:
             store(at, node)
         if node.get("uncalibrated"):  # the bench could not hold it: cached, so it is not tried again
             return Scale(1.0, "uncalibrated", _summary(node) | {"why": node["uncalibrated"]})
+        if max(abs(r) for r in node["residual"]) > MAX_RESIDUAL:  # no k serves this node: nor can one
+            return _trusted(Scale(float(node["k"]), "calibrated", _summary(node)), node["residual"])
         nodes.append(node)
     (nu0, k0), (nu1, k1) = ((n["foam"]["poisson"], n["k"]) for n in nodes)
     k = float(k0 + (k1 - k0) * (foam.poisson - nu0) / (nu1 - nu0))

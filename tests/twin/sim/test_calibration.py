@@ -157,6 +157,30 @@ def test_both_presets_of_a_foam_share_one_fem_solve_and_nothing_else_does(tmp_pa
     assert "reused" not in fresh and solved == pytest.approx(force, rel=1e-9)
 
 
+def test_a_round_scan_that_one_k_cannot_fit_stops_at_its_first_poisson_node(tmp_path, monkeypatch):
+    """A sphere's contact widens with depth in the FEM, not on the flex's facets: one k leaves the first
+    node (nu = 0.2) more than 15 % off, so k = 1 and the second node's FEM is never solved (it could not
+    make the interpolated k applicable); the one entry is read back, not tried again."""
+    from twin.sim.example_shapes import write_closed_surface
+
+    monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(calibration, "FEM_LEVELS_M", ((0.02, 0.03), (0.016, 0.03)))  # coarse: seconds
+    foam = mesh_object(write_closed_surface(tmp_path / "ball.stl", (32.0, 32.0, 32.0)), LIBRARY["block"])
+    lines: list[str] = []
+    scale = calibration.scale_of(foam.with_overrides(poisson=0.3), progress=lines.append)
+    assert (scale.source, scale.k) == ("uncalibrated", 1.0) and "not applied" in scale.detail["why"]
+    (stored,) = calibration.cache_dir().glob("*.json")  # the first node alone
+    entry = json.loads(stored.read_text())
+    assert entry["foam"]["poisson"] == calibration.POISSON_NODES[0]
+    assert max(abs(r) for r in entry["residual"]) > calibration.MAX_RESIDUAL
+    assert scale.detail["k_fitted"] == entry["k"] and sum("calibrating" in line for line in lines) == 1
+    (fem_solve,) = (calibration.cache_dir() / "fem").glob("*.json")  # one FEM, at nu = 0.2
+    assert fem_solve.exists()
+    lines.clear()
+    assert calibration.scale_of(foam.with_overrides(poisson=0.4), progress=lines.append).k == 1.0
+    assert lines == []
+
+
 def _box_stl(path, size_mm):
     """A closed box surface (12 triangles, outward), as binary STL."""
     import meshio

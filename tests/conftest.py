@@ -12,15 +12,27 @@ end and exit 0."""
 
 import os
 import signal
-import tempfile
-from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-# First-use foam calibrations (twin.sim.calibration) go to a cache of the suite's own, shared by its
-# workers and the processes they start, never to the user's ~/.cache.
-_CACHE = Path(tempfile.gettempdir()) / f"barrett-twin-tests-{os.getuid()}"
-os.environ.setdefault("TWIN_CACHE_DIR", str(_CACHE))
+_USER_CACHE = "TWIN_CACHE_DIR" in os.environ
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _calibration_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """First-use foam calibrations (twin.sim.calibration) go to a cache of this `pytest` call's own, shared
+    by its xdist workers and the processes they start: never the user's ~/.cache, and never a cache an
+    earlier run left, so every run pays what a fresh machine pays (a TWIN_CACHE_DIR set by the caller is
+    kept)."""
+    if _USER_CACHE:
+        return
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # popen-gwN's parent: the session's own directory (tests/once.py)
+    os.environ["TWIN_CACHE_DIR"] = str(root / "calibration-cache")
+
 
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)  # children start with the default again

@@ -75,10 +75,11 @@ def _status(run_dir: Path) -> str | None:
         return None
 
 
-def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:
+def identify_with_cameras(run_dir: Path, workers: int = 1, description=None) -> dict:
     """`twin identify --poisson-from-cameras` on a run, through the function its _poisson calls
     (twin.sim.poisson.poisson_for_modulus), then the modulus: nu from the two pairs, the Poisson range
-    drawn cut to its 95 % interval, estimate_modulus's figures."""
+    drawn cut to its 95 % interval, estimate_modulus's figures. `description`: the object as `twin
+    identify --shape --size-mm` (or `--object-mesh`) gives it (None: the run's own record)."""
     from dataclasses import replace
 
     from twin.sim.modulus import Tolerances
@@ -86,7 +87,7 @@ def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:
 
     started = time.perf_counter()
     tolerated = Tolerances()
-    said = poisson_for_modulus(run_dir, None, tolerated.poisson, narrow=True)
+    said = poisson_for_modulus(run_dir, description, tolerated.poisson, narrow=True)
     out: dict = {}
     if said.read is None:  # the CLI then draws the tolerated range, with a note
         out["nu_failed"] = said.failed
@@ -105,7 +106,7 @@ def identify_with_cameras(run_dir: Path, workers: int = 1) -> dict:
     out["drawn_poisson"] = list(said.drawn)
     out["nu_wall_s"] = time.perf_counter() - started
     tolerances = replace(tolerated, poisson=said.drawn)
-    return out | hidden.estimate(str(run_dir), None, tolerances=tolerances, workers=workers)
+    return out | hidden.estimate(str(run_dir), description, tolerances=tolerances, workers=workers)
 
 
 def job(args: tuple[dict, str, str]) -> dict:

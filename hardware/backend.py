@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 from twin.hardware.bh262.hand import BH8SerialHand
 from twin.hardware.pps.driver import PPSTactile
-from twin.hardware.rig_config import STEREO_CALIBRATION, RigConfig
+from twin.hardware.rig_config import RigConfig
 
-from twin.interface.backend import Backend, Clock
+from twin.interface.backend import Backend, Clock, stereo_calibration_key
 from twin.interface.devices import Hand, HandCommand, HandReading
 from twin.interface.errors import DeviceError, DeviceNotConfiguredError
 from twin.interface.hand_spec import HandConfig, hand_device_spec
@@ -100,16 +100,20 @@ class HardwareBackend(Backend):
                 self.config.tactile, tactile.url, self._clock, baud=tactile.baud, timeout_s=tactile.timeout_s
             )
         )
-        stereo_file = self.config.calibration.get(STEREO_CALIBRATION)
-        if stereo_file is not None:  # a missing or bad file fails here, before anything is opened
-            from twin.vision.calibration import StereoCalibration  # only a rig with cameras needs it
+        pairs = self.config.stereo_pairs
+        for k, pair in enumerate(pairs):  # a missing or bad file fails here, before anything is opened
+            stereo_file = self.config.calibration.get(stereo_calibration_key(k, pair.name))
+            if stereo_file is not None:
+                from twin.vision.calibration import StereoCalibration  # only a rig with cameras needs it
 
-            StereoCalibration.load(stereo_file)
-        self.stereo: StereoCapture | None = None
-        if self.config.stereo is not None:  # OpenCV is imported only by a rig with cameras
+                StereoCalibration.load(stereo_file)
+        self.stereo_pairs: list[StereoCapture] = []
+        """Every pair of the rig, `stereo` first (rig.toml's [stereo], or its [[stereo]] in order)."""
+        if pairs:  # OpenCV is imported only by a rig with cameras
             from twin.hardware.cameras.driver import StereoCapture
 
-            self.stereo = StereoCapture(self.config.stereo, self._clock)
+            self.stereo_pairs = [StereoCapture(pair.capture, self._clock) for pair in pairs]
+        self.stereo: StereoCapture | None = self.stereo_pairs[0] if self.stereo_pairs else None
         port = self.config.hand_port
         if port is None:
             self.hand: Hand = UnconfiguredHand(self.config.hand)
@@ -128,9 +132,19 @@ class HardwareBackend(Backend):
         """Wall clock."""
         return self._clock
 
+    def devices(self) -> list[Any]:
+        """The devices configured, hand first, every stereo pair last."""
+        return [d for d in (self.hand, self.tactile) if d is not None] + list(self.stereo_pairs)
+
+    def named_stereo_pairs(self) -> list[tuple[str, StereoCapture]]:
+        """Every pair with its rig.toml name, `stereo` first."""
+        names = [pair.name for pair in self.config.stereo_pairs]
+        return list(zip(names, self.stereo_pairs, strict=True))
+
     def object_box(self, rectifier: object, *, pair: int = 0) -> tuple[int, int, int, int] | None:
-        """rig.toml's [stereo].bbox (None: `--bbox` must give it); the rig has one pair."""
-        return self.config.stereo_bbox
+        """Pair `pair`'s bbox in rig.toml (None: `--bbox` must give the first pair's)."""
+        pairs = self.config.stereo_pairs
+        return pairs[pair].bbox if pair < len(pairs) else None
 
     def safety_limits(self) -> SafetyLimits:
         """The limits of the rig file (the datasheet's when it names none)."""
@@ -154,6 +168,11 @@ class HardwareBackend(Backend):
             meta["tactile_driver"] = self.tactile.metadata()
         if self.stereo is not None:
             meta["stereo_driver"] = self.stereo.metadata()
+            # each pair's name, in order (as the sim records its placements): what names its stream and
+            # its calibration file, so a reader finds both (twin.vision.strain_record)
+            meta["stereo_placements"] = [name for name, _ in self.named_stereo_pairs()]
+        for name, capture in self.named_stereo_pairs()[1:]:
+            meta[f"stereo_driver_{name}"] = capture.metadata()
         return meta
 
     def diagnostics(self) -> dict[str, Any]:
@@ -165,4 +184,6 @@ class HardwareBackend(Backend):
             out["tactile_link"] = self.tactile.diagnostics()
         if self.stereo is not None:
             out["stereo_capture"] = self.stereo.diagnostics()
+        for name, capture in self.named_stereo_pairs()[1:]:
+            out[f"stereo_capture_{name}"] = capture.diagnostics()
         return out

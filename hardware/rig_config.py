@@ -30,6 +30,11 @@ with one line naming the file and the key, before anything is opened or written.
     calibration = "calibration/stereo_calibration.json"   # relative to this file (optional)
     bbox = [112, 76, 105, 88] # the object's box on the first frame, rectified left pixels (optional)
 
+    # Two pairs or more (two opposite ones give the Poisson ratio, `twin identify --poisson-from-cameras`):
+    # [[stereo]] once per pair instead of [stereo], each with the keys above and a `name` (letters,
+    # digits, _; the first may leave it out: "main"). The first is recorded as `stereo`, a further one
+    # as `stereo_<name>`, and each pair's calibration file is its own.
+
     [calibration]             # paths relative to this file
     tactile_table = "calibration/tactile_table.csv"    # or tactile_points = "...points.csv"
 """
@@ -37,13 +42,15 @@ with one line naming the file and the key, before anything is opened or written.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from twin.hardware.bh262.driver import PortSettings
 from twin.hardware.cameras.config import BACKENDS, StereoCaptureConfig
 
+from twin.interface.backend import STEREO_CALIBRATION_KEY, stereo_calibration_key
 from twin.interface.errors import ConfigError
 from twin.interface.hand_spec import HandConfig
 from twin.interface.tactile_spec import TactileConfig
@@ -78,9 +85,14 @@ _STEREO_KEYS = {
     "resync": bool,
     "calibration": str,
     "bbox": list,
+    "name": str,
 }
-STEREO_CALIBRATION = "stereo_calibration"
-"""The key under which [stereo].calibration joins RigConfig.calibration (and the run's calibration/)."""
+STEREO_CALIBRATION = STEREO_CALIBRATION_KEY
+"""The key under which [stereo].calibration joins RigConfig.calibration (and the run's calibration/); a
+further pair's is stereo_calibration_key(pair, name)."""
+FIRST_PAIR_NAME = "main"
+"""The name of a rig's first stereo pair when rig.toml gives none (twin.interface.backend)."""
+MAX_STEREO_PAIRS = 4
 CALIBRATION_FILES = {
     "tactile_table": "per-taxel lines (taxel,a_kpa_per_count,b_kpa): what eq. 5 loads",
     "tactile_points": "7-point calibration data (taxel,pressure_kpa,count): fitted when there is no table",
@@ -142,13 +154,22 @@ class RigConfig:
     hand: HandConfig = field(default_factory=HandConfig)
     tactile_port: TactilePortConfig | None = None
     tactile: TactileConfig = field(default_factory=TactileConfig)
-    stereo: StereoCaptureConfig | None = None
-    """The stereo pair (None: no cameras); its calibration file is calibration["stereo_calibration"]."""
-    stereo_bbox: tuple[int, int, int, int] | None = None
-    """[stereo].bbox: the object's box on the first frame (x, y, w, h), the default of `--bbox`."""
+    stereo_pairs: tuple[StereoPairConfig, ...] = ()
+    """Every stereo pair (none: no cameras), the first recorded as `stereo`; pair k's calibration file is
+    calibration[stereo_calibration_key(k, name)]."""
     limits: SafetyLimits = field(default_factory=SafetyLimits)
     calibration: dict[str, Path] = field(default_factory=dict)
     source: Path | None = None
+
+    @property
+    def stereo(self) -> StereoCaptureConfig | None:
+        """The first pair's capture (None: no cameras)."""
+        return self.stereo_pairs[0].capture if self.stereo_pairs else None
+
+    @property
+    def stereo_bbox(self) -> tuple[int, int, int, int] | None:
+        """The first pair's bbox: the default of `--bbox`."""
+        return self.stereo_pairs[0].bbox if self.stereo_pairs else None
 
     def with_hand_port(self, url: str) -> RigConfig:
         """The same rig with the hand on `url` (the --hand flag overrides the file)."""
@@ -173,9 +194,20 @@ class RigConfig:
             },
             "tactile_port": vars(self.tactile_port) if self.tactile_port else None,
             "stereo": vars(self.stereo) if self.stereo else None,
+            "stereo_pairs": [{"name": p.name, **vars(p.capture)} for p in self.stereo_pairs],
             "limits": vars(self.limits),
             "calibration": {k: str(v) for k, v in self.calibration.items()},
         }
+
+
+@dataclass(frozen=True, kw_only=True)
+class StereoPairConfig:
+    """One stereo pair of a rig: its name (the run's `stereo_<name>` stream after the first), its capture
+    and the object's box on its first frame (rectified left pixels; None: `--bbox` or the backend's)."""
+
+    name: str
+    capture: StereoCaptureConfig
+    bbox: tuple[int, int, int, int] | None = None
 
 
 def _replace(obj: Any, **changes: Any) -> Any:
@@ -238,7 +270,7 @@ def load_rig(path: Path | str) -> RigConfig:
     files = {k: _named_file(path, f"[calibration].{k}", v) for k, v in calibration.items()}
     for key, file in files.items():
         _check_tactile_file(key, file)
-    stereo, stereo_bbox = _stereo(path, data["stereo"], files) if "stereo" in data else (None, None)
+    stereo_pairs = _stereo_pairs(path, data["stereo"], files) if "stereo" in data else ()
     for key in ("finger_counts", "spread_counts"):
         if key in limits:
             pair = limits[key]
@@ -278,8 +310,7 @@ def load_rig(path: Path | str) -> RigConfig:
         hand=hand_config,
         tactile_port=tactile_port,
         tactile=tactile_config,
-        stereo=stereo,
-        stereo_bbox=stereo_bbox,
+        stereo_pairs=stereo_pairs,
         limits=safety,
         calibration=files,
         source=path,
@@ -314,13 +345,37 @@ def _check_tactile_file(key: str, file: Path) -> None:
     (load_table if key == "tactile_table" else load_points)(file)
 
 
+def _stereo_pairs(path: Path, tables: Any, files: dict[str, Path]) -> tuple[StereoPairConfig, ...]:
+    """[stereo] (one pair) or [[stereo]] (one table per pair), each pair's calibration file (checked)
+    joining `files` under its own key."""
+    if isinstance(tables, dict):
+        tables = [tables]
+    if not isinstance(tables, list) or not tables:
+        raise ConfigError(f"{path}: [stereo]: expected a table, or [[stereo]] tables, one per pair")
+    if len(tables) > MAX_STEREO_PAIRS:
+        raise ConfigError(f"{path}: [[stereo]]: {len(tables)} pairs (at most {MAX_STEREO_PAIRS})")
+    pairs: list[StereoPairConfig] = []
+    for k, table in enumerate(tables):
+        label = "[stereo]" if len(tables) == 1 else f"[[stereo]] #{k + 1}"
+        pairs.append(_stereo(label, path, k, table, files, [p.name for p in pairs]))
+    return tuple(pairs)
+
+
 def _stereo(
-    path: Path, table: Any, files: dict[str, Path]
-) -> tuple[StereoCaptureConfig, tuple[int, int, int, int] | None]:
-    """The [stereo] table as the driver's config and the optional box; its calibration file (checked)
-    joins `files`."""
-    where = f"{path}: [stereo]"
+    label: str, path: Path, pair: int, table: Any, files: dict[str, Path], taken: list[str]
+) -> StereoPairConfig:
+    """One [stereo] table (`label` in messages) as its name, the driver's config and the optional box;
+    its calibration file (checked) joins `files`."""
+    where = f"{path}: {label}"
     stereo = _typed(where, table, _STEREO_KEYS)
+    name = stereo.pop("name", None)
+    if name is None and pair > 0:
+        raise ConfigError(f"{where}.name: missing (every pair after the first needs one: lateral, opposite)")
+    name = FIRST_PAIR_NAME if name is None else name
+    if not (name.isascii() and name.replace("_", "").isalnum() and len(name) <= 32):
+        raise ConfigError(f"{where}.name: {name!r} is not letters, digits and _ (at most 32)")
+    if name in taken:
+        raise ConfigError(f"{where}.name: {name!r} names two pairs")
     for side in ("left", "right"):
         if side not in stereo:
             raise ConfigError(f"{where}.{side}: missing (a device index, path, URL or file pattern)")
@@ -338,18 +393,28 @@ def _stereo(
         bbox = tuple(bbox)
     calibration = stereo.pop("calibration", None)
     if calibration is not None:
-        file = _named_file(path, "[stereo].calibration", calibration, exists=False)
+        file = _named_file(path, f"{label}.calibration", calibration, exists=False)
         from twin.vision.calibration import StereoCalibration, StereoCalibrationError  # a rig with cameras
 
         try:
             StereoCalibration.load(file)  # one line naming the file and what is wrong with it
         except StereoCalibrationError as exc:
             raise StereoCalibrationError(f"{where}.calibration: {exc}") from None
-        files[STEREO_CALIBRATION] = file
+        files[stereo_calibration_key(pair, name)] = file
     try:
-        return StereoCaptureConfig(**stereo), bbox
+        return StereoPairConfig(name=name, capture=StereoCaptureConfig(**stereo), bbox=bbox)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+class StereoPairFile(NamedTuple):
+    """A stereo pair as rig_toml writes it: its name (None: the first, unnamed), left and right sources,
+    its calibration file (relative to rig.toml) and the object's box."""
+
+    name: str | None
+    sources: tuple[str, str]
+    calibration: str | None = None
+    bbox: tuple[int, int, int, int] | None = None
 
 
 EMULATED_TIMEOUT_S = 10.0
@@ -368,13 +433,15 @@ def rig_toml(
     stereo_rate_hz: float = 30.0,
     stereo_calibration: str | None = None,
     stereo_bbox: tuple[int, int, int, int] | None = None,
+    more_stereo: Sequence[StereoPairFile] = (),
     emulated: bool = False,
 ) -> str:
     """A rig.toml for a hand on `hand_url` (and tactile pads), what `twin emulate rig --rig-file` writes.
 
     `emulated`: the devices are emulators sharing this host's CPU (twin-rendered frames, a twin-driven
     pad scan): the pads' and cameras' timeouts are then EMULATED_TIMEOUT_S, since a loaded host delivers
-    their frames late, not never (a real device's default stays the hang detector it is)."""
+    their frames late, not never (a real device's default stays the hang detector it is). `more_stereo`:
+    further pairs beside `stereo`, named (then every pair is a [[stereo]] table)."""
     text = (
         "# written by `twin emulate rig`\n"
         "[hand]\n"
@@ -388,15 +455,19 @@ def rig_toml(
     timeout = timeout if emulated else ""
     if tactile_url:
         text += f'\n[tactile]\nport = "{tactile_url}"\nrate_hz = 30.0\n{timeout}'
-    if stereo:
+    pairs = [StereoPairFile(None, stereo, stereo_calibration, stereo_bbox)] if stereo else []
+    pairs += list(more_stereo)
+    for pair in pairs:
+        head = "[stereo]" if len(pairs) == 1 else "[[stereo]]"
+        text += f"\n{head}\n" + (f'name = "{pair.name}"\n' if pair.name else "")
         text += (
-            f'\n[stereo]\nleft = "{stereo[0]}"\nright = "{stereo[1]}"\n'
+            f'left = "{pair.sources[0]}"\nright = "{pair.sources[1]}"\n'
             f'backend = "{stereo_backend}"\nrate_hz = {float(stereo_rate_hz)!r}\n{timeout}'
         )
-        if stereo_calibration:
-            text += f'calibration = "{stereo_calibration}"\n'
-        if stereo_bbox:
-            text += f"bbox = [{', '.join(str(int(v)) for v in stereo_bbox)}]\n"
+        if pair.calibration:
+            text += f'calibration = "{pair.calibration}"\n'
+        if pair.bbox:
+            text += f"bbox = [{', '.join(str(int(v)) for v in pair.bbox)}]\n"
     if tactile_table:
         text += f'\n[calibration]\ntactile_table = "{tactile_table}"\n'
     return text

@@ -1,7 +1,8 @@
 """`twin emulate rig`: every emulated device of the rig on one twin, with the rig.toml to reach them.
 
 The hand (BH8-262 on a serial line), the tactile pads (the PPS interface streaming frames) and,
-with `cameras=True`, the stereo pair (two MJPEG-over-HTTP streams, hardware/cameras/emulator.py) are
+with `cameras=True`, the stereo pair or pairs (two MJPEG-over-HTTP streams each,
+hardware/cameras/emulator.py) are
 served from the same real-time twin, so the pads feel what the emulated hand squeezes and the
 cameras see it; the pads' calibration files are the twin's simulated ones, written as a manufacturer
 would ship them, and the cameras' is the twin's ground-truth stereo calibration.
@@ -10,7 +11,7 @@ would ship them, and the cameras' is the twin's ground-truth stereo calibration.
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,7 +20,7 @@ from twin.hardware.bh262.emulator import HandEmulator, make_hand_emulator
 from twin.hardware.bh262.firmware import RealTimeTwin
 from twin.hardware.pps.emulator import FaultPlan as TactileFaultPlan
 from twin.hardware.pps.emulator import TactileEmulator
-from twin.hardware.rig_config import rig_toml
+from twin.hardware.rig_config import StereoPairFile, rig_toml
 
 if TYPE_CHECKING:
     from twin.hardware.cameras.emulator import CameraEmulator
@@ -53,14 +54,29 @@ class RigEmulator:
         seed: int = 0,
         on_event: Callable[[str], None] | None = None,
         cameras: bool = False,
+        camera_placements: str | Sequence[str] | None = None,
+        camera_rate_hz: float | None = None,
     ) -> None:
         """`obj`: a library name, any foam (`twin.api.foam(...)`) or None (make_hand_emulator).
-        `cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame).
+        `cameras`: also render and stream the stereo pair (it costs ~20-30 ms of CPU per frame), one pair
+        at each of `camera_placements` (twin.sim.cameras PLACEMENTS, e.g. `lateral,opposite`; None: the
+        default pair alone). Each pair costs its own render process. `camera_rate_hz`: the cameras' frame
+        rate (None: the Flea2's 30 fps), written to rig.toml so the run samples them at it.
 
         Both fault specs are checked first (ConfigError, one line), before the twin is built."""
         tactile_plan = TactileFaultPlan.parse(tactile_faults, option="--tactile-faults")
+        if camera_placements is not None and not cameras:
+            from twin.interface.errors import ConfigError
+
+            raise ConfigError("camera placements need cameras")
         self.hand: HandEmulator = make_hand_emulator(
-            obj, baud=baud, faults=faults, seed=seed, on_event=on_event, stereo=cameras
+            obj,
+            baud=baud,
+            faults=faults,
+            seed=seed,
+            on_event=on_event,
+            stereo=cameras,
+            camera_placements=camera_placements,
         )
         self.tactile = TactileEmulator(
             twin_tactile_source(self.hand.twin),
@@ -68,20 +84,27 @@ class RigEmulator:
             faults=tactile_plan,
             on_event=on_event,
         )
-        self.cameras: CameraEmulator | None = None
+        self.camera_pairs: list[CameraEmulator] = []
+        """One emulator per stereo pair of the twin, in its order."""
         if cameras:  # OpenCV (the frames' JPEG) is imported only by a rig with cameras
             from twin.hardware.cameras.emulator import CameraEmulator
 
-            self.cameras = CameraEmulator(self.hand.twin, seed=seed, on_event=on_event)
-        self.camera_addresses: tuple[str, str] | None = None
-        """The left and right stream URLs once served (None without cameras)."""
+            self.camera_pairs = [
+                CameraEmulator(self.hand.twin, pair=k, rate_hz=camera_rate_hz, seed=seed, on_event=on_event)
+                for k in range(len(self.hand.twin.backend.stereo_pairs))
+            ]
+        self.cameras: CameraEmulator | None = self.camera_pairs[0] if self.camera_pairs else None
+        """The first pair's emulator."""
+        self.camera_pair_addresses: list[tuple[str, str]] = []
+        """Each pair's left and right stream URLs once served."""
         self.baud = baud
         self._tmp: tempfile.TemporaryDirectory | None = None
 
     def serve(self, where: str = "pty") -> tuple[str, str]:
         """Serve the hand and pads on ptys (`pty`) or TCP (`tcp:PORT`: the hand on PORT, the pads on
         PORT + 1; `tcp:0` picks free ports); returns their two addresses. The cameras, if any, are
-        served over HTTP on PORT + 2 (a free port with `pty` or `tcp:0`): see `camera_addresses`."""
+        served over HTTP on PORT + 2, a second pair on PORT + 3 ... (free ports with `pty` or `tcp:0`):
+        see `camera_addresses`."""
         port = 0
         if where == "pty":
             hand = self.hand.serve_pty()
@@ -91,9 +114,15 @@ class RigEmulator:
             port = 0 if port == 0 else port + 1
         self.hand.twin.start()  # the pads scan the twin from their first frame on
         tactile = self.tactile.serve_pty() if where == "pty" else self.tactile.serve_tcp(port)
-        if self.cameras is not None:
-            self.camera_addresses = self.cameras.serve_http(0 if port == 0 else port + 1)
+        self.camera_pair_addresses = [
+            camera.serve_http(0 if port == 0 else port + 1 + k) for k, camera in enumerate(self.camera_pairs)
+        ]
         return hand, tactile
+
+    @property
+    def camera_addresses(self) -> tuple[str, str] | None:
+        """The first pair's left and right stream URLs once served (None without cameras)."""
+        return self.camera_pair_addresses[0] if self.camera_pair_addresses else None
 
     def write_rig_file(self, path: Path | str | None) -> Path:
         """The twin's tactile (and stereo) calibration beside a rig.toml that names every port; returns
@@ -105,33 +134,37 @@ class RigEmulator:
         path.parent.mkdir(parents=True, exist_ok=True)
         files = self.hand.twin.backend.tactile.sensor.write_files(path.parent / "calibration")
         table = files["tactile_table"].relative_to(path.parent)
-        stereo_calibration, stereo_bbox = None, None
-        if self.cameras is not None and self.camera_addresses is not None:
-            written = self.cameras.write_calibration(path.parent / "calibration")
-            stereo_calibration = str(written.relative_to(path.parent))
-            stereo_bbox = self._object_box(written)
+        pairs = []
+        served = zip(self.camera_pairs, self.camera_pair_addresses, strict=False)
+        for k, (camera, sources) in enumerate(served):
+            written = camera.write_calibration(path.parent / "calibration")
+            name = camera.name if len(self.camera_pairs) > 1 else None  # one pair: [stereo], as ever
+            relative = str(written.relative_to(path.parent))
+            pairs.append(StereoPairFile(name, sources, relative, self._object_box(written, k)))
         text = rig_toml(
             self.hand.address,
             baud=self.baud,
             tactile_url=self.tactile.address,
             tactile_table=str(table),
-            stereo=self.camera_addresses,
+            stereo=pairs[0].sources if len(pairs) == 1 else None,
             stereo_rate_hz=self.cameras.rate_hz if self.cameras is not None else 30.0,
-            stereo_calibration=stereo_calibration,
-            stereo_bbox=stereo_bbox,
+            stereo_calibration=pairs[0].calibration if len(pairs) == 1 else None,
+            stereo_bbox=pairs[0].bbox if len(pairs) == 1 else None,
+            more_stereo=pairs if len(pairs) > 1 else (),
             emulated=True,
         )
         path.write_text(text)
         return path
 
-    def _object_box(self, calibration_file: Path) -> tuple[int, int, int, int] | None:
-        """The twin's foam box on the first frame: what a user would draw for the run (rig.toml bbox)."""
+    def _object_box(self, calibration_file: Path, pair: int = 0) -> tuple[int, int, int, int] | None:
+        """The twin's foam box on pair `pair`'s first frame: what a user would draw for the run (rig.toml
+        bbox)."""
         from twin.vision.calibration import StereoCalibration
         from twin.vision.reconstruct import Rectifier
 
         twin = self.hand.twin
         with twin.lock:
-            return twin.backend.object_box(Rectifier(StereoCalibration.load(calibration_file)))
+            return twin.backend.object_box(Rectifier(StereoCalibration.load(calibration_file)), pair=pair)
 
     def failed(self) -> str | None:
         """Why the hand or the pads no longer serve (one line), or None while both do."""
@@ -140,8 +173,8 @@ class RigEmulator:
 
     def close(self) -> None:
         """Stop every emulator and the twin."""
-        if self.cameras is not None:
-            self.cameras.close()
+        for camera in self.camera_pairs:
+            camera.close()
         self.tactile.close()
         self.hand.close()
         if self._tmp is not None:

@@ -13,7 +13,7 @@ import select
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -456,17 +456,24 @@ def make_hand_emulator(
     seed: int = 0,
     on_event: Callable[[str], None] | None = None,
     stereo: bool = False,
+    camera_placements: str | Sequence[str] | None = None,
 ) -> HandEmulator:
     """A hand emulator on a fresh twin holding `obj`: a library name, any foam (a hidden modulus, size
     or scan for an identification through the bridge), or None for the empty hand.
 
-    `stereo`: build the twin's scene with the two cameras (for twin.hardware.cameras.emulator)."""
+    `stereo`: build the twin's scene with the stereo cameras (for twin.hardware.cameras.emulator), one
+    pair at each of `camera_placements` (twin.sim.cameras PLACEMENTS; None: the default pair)."""
     from twin.sim.backend import SimBackend
     from twin.sim.foam import get_object
 
     plan = FaultPlan.parse(faults)
+    placements = None
+    if camera_placements is not None:
+        from twin.sim.cameras import placements_named
+
+        placements = placements_named(camera_placements)
     foam = get_object(obj) if isinstance(obj, str) else obj
-    twin = RealTimeTwin(SimBackend(foam, seed=seed, stereo=stereo))
+    twin = RealTimeTwin(SimBackend(foam, seed=seed, stereo=stereo, stereo_placement=placements))
     return HandEmulator(twin, baud=baud, options=options, faults=plan, on_event=on_event)
 
 

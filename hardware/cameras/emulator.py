@@ -119,18 +119,20 @@ class _Snapshot:
             stage(self.model, self.data)
 
 
-def _render_process(model: mujoco.MjModel, config: Any, seed: int, conn: Any) -> None:
-    """The render process: pose, render and noise one pair per state received, until None or EOF.
+def _render_process(model: mujoco.MjModel, config: Any, seed: int, conn: Any, pair: int = 0) -> None:
+    """The render process: pose, render and noise one pair (the twin's pair `pair`) per state received,
+    until None or EOF.
 
     Replies ("ready",) once, then ("pair", t_s, left, right, render_s) per state, or ("error", text)."""
-    from twin.sim.cameras import SimStereo
+    from twin.sim.cameras import SimStereo, pair_camera_names
 
     with contextlib.suppress(OSError):
         os.nice(RENDER_NICE)
     stereo = None
     try:
         snapshot = _Snapshot(model)
-        stereo = SimStereo(snapshot, config, np.random.default_rng([seed, 3]))  # type: ignore[arg-type]
+        rng = np.random.default_rng([seed, 3] if pair == 0 else [seed, 3, pair])
+        stereo = SimStereo(snapshot, config, rng, cameras=pair_camera_names(pair))  # type: ignore[arg-type]
         stereo.connect()
         conn.send(("ready",))
         while (state := conn.recv()) is not None:
@@ -149,21 +151,29 @@ def _render_process(model: mujoco.MjModel, config: Any, seed: int, conn: Any) ->
 
 
 class CameraEmulator:
-    """The twin's two cameras as two MJPEG-over-HTTP streams at `rate_hz`."""
+    """One stereo pair of the twin (`pair`: its index in the twin's stereo_pairs) as two MJPEG-over-HTTP
+    streams at `rate_hz`."""
 
     def __init__(
         self,
         twin: RealTimeTwin,
         *,
+        pair: int = 0,
         rate_hz: float | None = None,
         quality: int = DEFAULT_QUALITY,
         noise: bool = True,
         seed: int = 0,
         on_event: Callable[[str], None] | None = None,
     ) -> None:
-        stereo = twin.backend.stereo
-        if stereo is None:
+        if twin.backend.stereo is None:
             raise ConfigError("the twin has no cameras: build its SimBackend with stereo=True")
+        if not 0 <= pair < len(twin.backend.stereo_pairs):
+            pairs = len(twin.backend.stereo_pairs)
+            raise ConfigError(f"the twin has {pairs} stereo pair(s), not a pair {pair}")
+        stereo = twin.backend.stereo_pairs[pair]
+        self.pair = pair
+        self.name = twin.backend.stereo_placements[pair]
+        """Where the pair stands (twin.sim.cameras PLACEMENTS): rig.toml names it so."""
         if rate_hz is not None and not rate_hz > 0:
             raise ConfigError(f"camera emulator rate_hz must be > 0, got {rate_hz}")
         if not 1 <= quality <= 100:
@@ -243,8 +253,9 @@ class CameraEmulator:
         calibration would give for these cameras); returns its path."""
         directory.mkdir(parents=True, exist_ok=True)
         with self.twin.lock:
-            calibration = self.twin.backend.stereo.calibration()
-        return calibration.save(directory / STEREO_CALIBRATION_FILE)
+            calibration = self.twin.backend.stereo_pairs[self.pair].calibration()
+        name = STEREO_CALIBRATION_FILE if self.pair == 0 else f"stereo_calibration_{self.name}.json"
+        return calibration.save(directory / name)
 
     # --- rendering --------------------------------------------------------------------------
 
@@ -254,7 +265,7 @@ class CameraEmulator:
         config = self.config if self.noise else _without_noise(self.config)
         context = multiprocessing.get_context("spawn")
         conn, child_conn = context.Pipe()
-        args = (world.model, config, self.seed, child_conn)
+        args = (world.model, config, self.seed, child_conn, self.pair)
         process = context.Process(target=_render_process, args=args, name="camera-render", daemon=True)
         state = np.empty(mujoco.mj_stateSize(world.model, POSE_STATE))
         try:

@@ -119,19 +119,11 @@ def sim_backend(
     params = foam(obj) if isinstance(obj, str) else obj
     placements = None
     if camera_placements is not None:
-        from twin.sim.cameras import PLACEMENTS
+        from twin.sim.cameras import placements_named
 
         if not cameras:
             raise ConfigError("camera placements need cameras")
-        given = camera_placements
-        names = [n.strip() for n in (given.split(",") if isinstance(given, str) else given)]
-        unknown = [n for n in names if n not in PLACEMENTS]
-        if unknown or not names or len(set(names)) < len(names):
-            raise ConfigError(
-                f"camera placements {','.join(names) or '(none)'}: name each of {', '.join(PLACEMENTS)} "
-                "at most once"
-            )
-        placements = [PLACEMENTS[n] for n in names]
+        placements = placements_named(camera_placements)
     return SimBackend(
         params,
         seed=seed,

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from twin.cli.common import add_foam_overrides, add_object_mesh
 from twin.interface.errors import ConfigError
 from twin.outputs import check_writable
-from twin.validation import duration, integer, out_file, seed
+from twin.validation import duration, finite, integer, out_file, seed
 
 if TYPE_CHECKING:
     from twin.sim.foam import FoamParams
@@ -43,6 +43,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-cameras", action="store_true", help="rig: leave the stereo cameras out (they cost CPU)"
     )
+    p.add_argument(
+        "--camera-placement",
+        metavar="NAMES",
+        help="rig: where the stereo pairs stand, one pair each, comma-separated (lateral, opposite, top; "
+        "default lateral); lateral,opposite gives `twin identify --poisson-from-cameras` its two pairs "
+        "(each pair renders in a process of its own: ~a core at 30 fps)",
+    )
+    p.add_argument(
+        "--camera-rate",
+        type=finite(0, 120, min_inclusive=False),
+        metavar="HZ",
+        help="rig: the emulated cameras' frame rate, written to rig.toml (default: the Flea2's 30 fps; "
+        "two pairs on 2 cores keep up at ~10)",
+    )
     add_foam_overrides(p)  # the object a lab's hand would hold: a modulus, size or placement to identify
 
 
@@ -59,8 +73,14 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         where.startswith("tcp:") and where[4:].isascii() and where[4:].isdigit() and int(where[4:]) < 65536
     ):
         raise ConfigError(f"--port {where!r}: expected pty or tcp:PORT (tcp:0 picks a free port)")
-    if args.what == "rig" and where != "pty" and int(where[4:]) > 65533:  # pads on PORT+1, cameras PORT+2
-        raise ConfigError(f"--port {where}: the rig serves PORT, PORT+1 and PORT+2: at most tcp:65533")
+    for flag, value in (("--camera-placement", args.camera_placement), ("--camera-rate", args.camera_rate)):
+        if value is not None and (args.what != "rig" or args.no_cameras):
+            raise ConfigError(f"{flag} is for `twin emulate rig` with its cameras")
+    pairs = len((args.camera_placement or "lateral").split(","))
+    pairs = 0 if args.what != "rig" or args.no_cameras else pairs
+    last = 65535 - 1 - pairs  # the hand on PORT, the pads on PORT+1, pair k's cameras on PORT+2+k
+    if args.what == "rig" and where != "pty" and int(where[4:]) > last:
+        raise ConfigError(f"--port {where}: the rig serves PORT to PORT+{1 + pairs}: at most tcp:{last}")
     if args.rig_file is not None:
         check_writable(args.rig_file.parent, "--rig-file")  # before the twin starts
     from twin.hardware.bh262.emulator import make_hand_emulator
@@ -85,6 +105,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             seed=args.seed,
             on_event=event,
             cameras=not args.no_cameras,
+            camera_placements=args.camera_placement,
+            camera_rate_hz=args.camera_rate,
         )
     try:
         if args.what == "hand":
@@ -99,10 +121,12 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         print(f"tactile: {tactile_address}  (PPS pads, 162 taxels at 30 Hz)", flush=True)
         if emulator.camera_addresses is None:
             print("cameras: not emulated (--no-cameras)", flush=True)
-        else:
-            left, right = emulator.camera_addresses
-            rate = emulator.cameras.rate_hz
-            print(f"cameras: {left}  {right}  (MJPEG over HTTP, 320x240 at {rate:g} fps)", flush=True)
+        for camera, (left, right) in zip(emulator.camera_pairs, emulator.camera_pair_addresses, strict=True):
+            where_from = f", {camera.name}" if len(emulator.camera_pairs) > 1 else ""
+            print(
+                f"cameras: {left}  {right}  (MJPEG over HTTP, 320x240 at {camera.rate_hz:g} fps{where_from})",
+                flush=True,
+            )
         print(f"rig file: {emulator.write_rig_file(args.rig_file)}", flush=True)
     elif args.rig_file:
         args.rig_file.parent.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,7 @@ from dm_control import mjcf
 from numpy.typing import NDArray
 
 from twin.interface.devices import StereoCamera, StereoFrame
+from twin.interface.errors import ConfigError
 from twin.interface.specs import DeviceSpec
 from twin.interface.stereo_spec import StereoConfig, stereo_device_spec
 from twin.rendering import renderer
@@ -89,6 +90,19 @@ DEFAULT_PLACEMENT = "lateral"
 puts every library foam within the reconstruction's targets from `lateral` against 2 of 5 from the
 top. The shape pipeline's contours (twin.vision.contour.to_view_plane) and height maps
 (twin.shape.surface) work in the pair's own view frame, from its calibration: any placement."""
+
+
+def placements_named(given: str | Sequence[str]) -> list[CameraPlacement]:
+    """The placements named in `given` (one string `lateral,opposite` or a sequence), each at most once;
+    ConfigError in one line otherwise."""
+    names = [n.strip() for n in (given.split(",") if isinstance(given, str) else given)]
+    unknown = [n for n in names if n not in PLACEMENTS]
+    if unknown or not names or len(set(names)) < len(names):
+        raise ConfigError(
+            f"camera placements {','.join(names) or '(none)'}: name each of {', '.join(PLACEMENTS)} "
+            "at most once"
+        )
+    return [PLACEMENTS[n] for n in names]
 
 
 def pair_camera_names(pair: int = 0) -> tuple[str, str]:

@@ -167,14 +167,27 @@ def observe_run(run: Run, height_m: float, palm_z_m: float, troughs: int = TROUG
     if streams is None:
         raise ValueError("the run has no two stereo pairs on opposite sides of the object")
     plus_name, minus_name = streams
-    t_stereo = run.stream(plus_name).t_s
-    if not np.array_equal(t_stereo, run.stream(minus_name).t_s) or not len(t_stereo):
-        raise ValueError(f"streams {plus_name} and {minus_name} were not sampled together")
+    t_plus, t_minus = run.stream(plus_name).t_s, run.stream(minus_name).t_s
+    if not len(t_plus) or not len(t_minus):
+        raise ValueError(f"streams {plus_name} and {minus_name}: a pair recorded no frame")
+    # In the twin both pairs are sampled at the same instants; on hardware each pair's frames arrive on
+    # their own (ms apart): each trough takes each pair's nearest frame, within half a frame period.
+    period_s = float(np.median(np.diff(t_plus))) if len(t_plus) > 1 else math.inf
 
-    def clouds(k: int) -> Clouds:
-        return _vision_points(run, plus_name, k), _vision_points(run, minus_name, k)
+    def clouds(k_plus: int, k_minus: int) -> Clouds:
+        return _vision_points(run, plus_name, k_plus), _vision_points(run, minus_name, k_minus)
 
-    frames = [int(np.argmin(np.abs(t_stereo - t_s))) for t_s in _trough_times_s(run, troughs)]
-    poses = _taxels_at(run, [float(t_stereo[k]) for k in frames])
-    at_troughs = [(clouds(k), taxels, normals) for k, (taxels, normals) in zip(frames, poses, strict=True)]
-    return observation(clouds(0), at_troughs, height_m, palm_z_m)
+    frames = []
+    for t_s in [min(t_plus[0], t_minus[0]), *_trough_times_s(run, troughs)]:
+        k_plus, k_minus = int(np.argmin(np.abs(t_plus - t_s))), int(np.argmin(np.abs(t_minus - t_s)))
+        apart_s = abs(float(t_plus[k_plus] - t_minus[k_minus]))
+        if apart_s > 0.5 * period_s:
+            raise ValueError(
+                f"streams {plus_name} and {minus_name} were not sampled together ({1e3 * apart_s:.0f} ms "
+                f"apart at {t_s:.2f} s, over half their {1e3 * period_s:.0f} ms frame period)"
+            )
+        frames.append((k_plus, k_minus))
+    rest, *at = frames
+    poses = _taxels_at(run, [float(t_plus[k_plus]) for k_plus, _ in at])
+    at_troughs = [(clouds(*k), taxels, normals) for k, (taxels, normals) in zip(at, poses, strict=True)]
+    return observation(clouds(*rest), at_troughs, height_m, palm_z_m)

@@ -159,6 +159,57 @@ def test_bad_stereo_sections_are_refused_in_one_line(body: str, message: str, tm
         assert isinstance(info.value, StereoCalibrationError)
 
 
+def test_a_rig_file_with_two_stereo_pairs_names_each_with_its_own_calibration(tmp_path: Path):
+    """[[stereo]] once per pair: the first is `stereo` (named `main` unless named), a further one
+    `stereo_<name>`, each pair's calibration under its own key; a [stereo] rig file reads as before."""
+    from twin.hardware.rig_config import StereoPairFile
+
+    backend = SimBackend(None, stereo=True)
+    backend.stereo.calibration().save(tmp_path / "cal.json")
+    backend.stereo.calibration().save(tmp_path / "cal2.json")
+    pairs = [
+        StereoPairFile(None, ("0", "1"), "cal.json"),
+        StereoPairFile("opposite", ("2", "3"), "cal2.json"),
+    ]
+    (tmp_path / "rig.toml").write_text(rig_toml("socket://127.0.0.1:1", more_stereo=pairs))
+    rig = load_rig(tmp_path / "rig.toml")
+    assert [(p.name, p.capture.left, p.capture.right) for p in rig.stereo_pairs] == [
+        ("main", 0, 1),
+        ("opposite", 2, 3),
+    ]
+    assert rig.stereo == rig.stereo_pairs[0].capture and rig.stereo_bbox is None
+    assert rig.calibration == {
+        STEREO_CALIBRATION: tmp_path / "cal.json",
+        "stereo_calibration_opposite": tmp_path / "cal2.json",
+    }
+    assert [p["name"] for p in rig.to_json()["stereo_pairs"]] == ["main", "opposite"]
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ("[[stereo]]\nleft = 0\nright = 1\n[[stereo]]\nleft = 2\nright = 3", r"#2\.name: missing"),
+        (
+            '[[stereo]]\nname = "a"\nleft = 0\nright = 1\n[[stereo]]\nname = "a"\nleft = 2\nright = 3',
+            r"#2\.name: 'a' names two pairs",
+        ),
+        ('[[stereo]]\nname = "../x"\nleft = 0\nright = 1', r"\.name: '\.\./x' is not letters, digits and _"),
+        ("[[stereo]]\nleft = 0\nright = 1\nbbox = [1, 2, 0, 4]", r"\[stereo\]\.bbox: .* is empty"),
+        (
+            "".join(f'[[stereo]]\nname = "p{k}"\nleft = 0\nright = 1\n' for k in range(5)),
+            r"5 pairs \(at most 4\)",
+        ),
+        ("stereo = 3", r"\[stereo\]: expected a table, or \[\[stereo\]\] tables"),
+    ],
+)
+def test_bad_stereo_pairs_are_refused_in_one_line(body: str, message: str, tmp_path: Path):
+    path = tmp_path / "rig.toml"
+    path.write_text(body + "\n")
+    with pytest.raises(ConfigError, match=message) as info:
+        load_rig(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
 @pytest.mark.slow
 def test_hardware_backend_reads_the_rig_emulators_cameras(tmp_path: Path):
     with RigEmulator("block", cameras=True) as rig:

@@ -194,7 +194,8 @@ class SimBackend(Backend):
 
     def object_box(self, rectifier: Rectifier, margin_px: int = 3, *, pair: int = 0) -> Box | None:
         """The foam's bounding box in the rectified left view of pair `pair` now: what a user would draw
-        on the first frame (None without foam or cameras)."""
+        on the first frame (None without foam or cameras, or with the foam out of the view: an object
+        that rolled off the palm)."""
         if self.foam is None or self.stereo is None:
             return None
         from twin.sim.cameras import camera_pose_cv
@@ -210,7 +211,8 @@ class SimBackend(Backend):
         (x0, y0), (x1, y1) = uv.min(axis=0) - margin_px, uv.max(axis=0) + margin_px
         w, h = rectifier.image_size
         x0, y0 = max(0, int(x0)), max(0, int(y0))
-        return x0, y0, min(w, int(np.ceil(x1))) - x0, min(h, int(np.ceil(y1))) - y0
+        box = x0, y0, min(w, int(np.ceil(x1))) - x0, min(h, int(np.ceil(y1))) - y0
+        return box if box[2] > 0 and box[3] > 0 else None
 
     def surface_truth(self, rectifier: Rectifier) -> SurfaceTruth | None:
         """The foam's visible pixels and rendered surface now (twin.sim.surface_truth)."""

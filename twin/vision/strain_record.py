@@ -26,6 +26,12 @@ from twin.vision import lateral_strain as ls
 from twin.vision.calibration import StereoCalibration
 from twin.vision.fusion import VISION
 
+TROUGH_TOLERANCE = 0.05
+"""How far (a fraction of the squeeze's period) a pair's frame may be from a trough it is read at: each
+face there is within 1 - cos(2 pi 0.05) = 4.9 % of its excursion of the trough's (100 ms at the 0.5 Hz
+squeeze), and the top is read at the +x pair's frame's instant, so their ratio moves less. A 30 fps pair's
+nearest frame is within 17 ms, a 10 fps one's within 50 ms; a loaded 2-core host running four emulated
+cameras delivered one 65 ms off."""
 TROUGHS = 2
 """Troughs of the squeeze read (the balanced grasp recurs every period): the compress phase's start and
 the next one, where the run lasts that long."""
@@ -104,8 +110,9 @@ def _vision_points(run: Run, stream: str, k: int) -> NDArray[np.float64]:
     return np.asarray(s["points_m"][k][s["point_source"][k] == VISION], dtype=np.float64)
 
 
-def _trough_times_s(run: Run, troughs: int) -> list[float]:
-    """The squeeze's troughs within the run: the compress phase's first command, then every period."""
+def _trough_times_s(run: Run, troughs: int) -> tuple[list[float], float]:
+    """The squeeze's troughs within the run (the compress phase's first command, then every period), and
+    the squeeze's period."""
     phases = run.metadata.get("phases") or []
     profile = (run.metadata.get("experiment") or {}).get("profile") or {}
     if "compress" not in phases or "frequency_hz" not in profile:
@@ -116,7 +123,7 @@ def _trough_times_s(run: Run, troughs: int) -> list[float]:
         raise ValueError("the grasp never reached the squeeze (no compress phase in the run)")
     start_s, period_s = float(command.t_s[in_compress[0]]), 1.0 / float(profile["frequency_hz"])
     end_s = float(command.t_s[-1])
-    return [start_s + k * period_s for k in range(troughs) if start_s + k * period_s <= end_s]
+    return [start_s + k * period_s for k in range(troughs) if start_s + k * period_s <= end_s], period_s
 
 
 def _taxels_at(run: Run, times_s: list[float]) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -170,24 +177,32 @@ def observe_run(run: Run, height_m: float, palm_z_m: float, troughs: int = TROUG
     t_plus, t_minus = run.stream(plus_name).t_s, run.stream(minus_name).t_s
     if not len(t_plus) or not len(t_minus):
         raise ValueError(f"streams {plus_name} and {minus_name}: a pair recorded no frame")
-    # In the twin both pairs are sampled at the same instants; on hardware each pair's frames arrive on
-    # their own (ms apart): each trough takes each pair's nearest frame, within half a frame period.
-    period_s = float(np.median(np.diff(t_plus))) if len(t_plus) > 1 else math.inf
 
     def clouds(k_plus: int, k_minus: int) -> Clouds:
         return _vision_points(run, plus_name, k_plus), _vision_points(run, minus_name, k_minus)
 
-    frames = []
-    for t_s in [min(t_plus[0], t_minus[0]), *_trough_times_s(run, troughs)]:
-        k_plus, k_minus = int(np.argmin(np.abs(t_plus - t_s))), int(np.argmin(np.abs(t_minus - t_s)))
-        apart_s = abs(float(t_plus[k_plus] - t_minus[k_minus]))
-        if apart_s > 0.5 * period_s:
-            raise ValueError(
-                f"streams {plus_name} and {minus_name} were not sampled together ({1e3 * apart_s:.0f} ms "
-                f"apart at {t_s:.2f} s, over half their {1e3 * period_s:.0f} ms frame period)"
-            )
-        frames.append((k_plus, k_minus))
-    rest, *at = frames
-    poses = _taxels_at(run, [float(t_plus[k_plus]) for k_plus, _ in at])
+    # In the twin both pairs are sampled at the same instants; on hardware each pair's frames arrive on
+    # their own (ms apart): at each trough, each pair's nearest frame, within TROUGH_TOLERANCE of it.
+    trough_times_s, squeeze_period_s = _trough_times_s(run, troughs)
+    tolerance_s = TROUGH_TOLERANCE * squeeze_period_s
+    last_s = min(float(t_plus[-1]), float(t_minus[-1])) + tolerance_s  # a late loop's last commands
+    trough_times_s = [t_s for t_s in trough_times_s if t_s <= last_s]  # may outlast its cameras' frames
+    if not trough_times_s:
+        raise ValueError(f"streams {plus_name} and {minus_name} end before the squeeze's first trough")
+    at = []
+    for t_s in trough_times_s:
+        nearest = []
+        for name, times in ((plus_name, t_plus), (minus_name, t_minus)):
+            k = int(np.argmin(np.abs(times - t_s)))
+            off_s = abs(float(times[k]) - t_s)
+            if off_s > tolerance_s:
+                raise ValueError(
+                    f"stream {name} has no frame within {1e3 * tolerance_s:.0f} ms of the squeeze's trough "
+                    f"at {t_s:.2f} s (the nearest: {1e3 * off_s:.0f} ms)"
+                )
+            nearest.append(k)
+        at.append((nearest[0], nearest[1]))
+    poses = _taxels_at(run, [float(t_plus[k_plus]) for k_plus, _ in at])  # the hand as the +x pair saw it
     at_troughs = [(clouds(*k), taxels, normals) for k, (taxels, normals) in zip(at, poses, strict=True)]
+    rest = (0, 0)  # each pair's first frame: the object on the palm before the fingers reach it
     return observation(clouds(*rest), at_troughs, height_m, palm_z_m)

@@ -57,11 +57,10 @@ def emulator_flags(case: dict) -> list[str]:
     return ["--object", case["shape"], *flags, "--density", repr(block.density_kg_m3)]
 
 
-def hardware_run(case: dict, scratch: Path, cameras: bool = True) -> dict:
-    """The case's 14 s hardware run (with the cameras, or hand and pads alone) against the emulated rig
-    holding it: the run's directory, the driver's exit status and last stderr line, and the emulator's
-    object line."""
-    name = f"hw-{case['shape']}-s{case['seed']}" + ("" if cameras else "-no-cameras")
+def hardware_run(case: dict, scratch: Path) -> dict:
+    """The case's 14 s hardware run with the two pairs against the emulated rig holding it: the run's
+    directory, the driver's exit status and last stderr line, and the emulator's object line."""
+    name = f"hw-{case['shape']}-s{case['seed']}"
     rig = scratch / f"rig-{name}" / "rig.toml"
     run_dir = scratch / name
     shutil.rmtree(run_dir, ignore_errors=True)  # a wall-time run: never reused from an earlier one
@@ -72,15 +71,14 @@ def hardware_run(case: dict, scratch: Path, cameras: bool = True) -> dict:
         *emulator_flags(case),
         "--seed",
         str(case["seed"]),
-        *(CAMERA_FLAGS if cameras else ["--no-cameras"]),
+        *CAMERA_FLAGS,
     ]
     emulator = emulated_rig.start(rig, log, *flags, cwd=rig.parent)
     try:
-        watched = ["--cameras"] if cameras else []
         named = [] if "mesh" in case else ["--object", case["shape"]]  # a hardware run names a library shape
         started = time.perf_counter()
         driver = subprocess.run(
-            [*emulated_rig.TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig), *watched,
+            [*emulated_rig.TWIN, "run", "compress", "--backend", "hardware", "--rig", str(rig), "--cameras",
              *named, "--duration", str(hidden.DURATION_S), "--out", str(run_dir), "--no-progress"],
             capture_output=True, text=True, cwd=rig.parent, timeout=600,
         )  # fmt: skip
@@ -100,12 +98,14 @@ def hardware_run(case: dict, scratch: Path, cameras: bool = True) -> dict:
 def rig_figures(run_dir: str) -> dict:
     """What the bridge delivered: the hand's rate, and per stereo pair the frames recorded and the points
     per frame (median)."""
+    from twin.interface.backend import stereo_stream_name
     from twin.recording.reader import Run
 
     run = Run(run_dir)
     hand = run.stream("hand")
     figures = {"status": run.status, "hand_hz": (len(hand.t_s) - 1) / float(hand.t_s[-1] - hand.t_s[0])}
-    for name in ("stereo", "stereo_opposite"):
+    for pair, placement in enumerate(run.metadata.get("stereo_placements") or []):
+        name = stereo_stream_name(pair, placement)
         if name in run.streams:
             stereo = run.stream(name)
             points = [len(p) for p in stereo["points_m"]] if len(stereo) else [0]
@@ -185,8 +185,6 @@ def _cell(est: dict | None) -> str:
     or why there is none."""
     if not est:
         return ""
-    if "driver_rc" in est and est["driver_rc"] != 0:
-        return f"run failed: {est['driver_said'][:80]}"
     held = "" if est.get("held", True) else "not held; "
     if "estimate_pa" in est:
         low, high = (v / 1e3 for v in est["ci95_pa"])

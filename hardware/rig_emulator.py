@@ -22,6 +22,8 @@ from twin.hardware.pps.emulator import FaultPlan as TactileFaultPlan
 from twin.hardware.pps.emulator import TactileEmulator
 from twin.hardware.rig_config import StereoPairFile, rig_toml
 
+from twin.interface.errors import ConfigError
+
 if TYPE_CHECKING:
     from twin.hardware.cameras.emulator import CameraEmulator
 
@@ -66,8 +68,6 @@ class RigEmulator:
         Both fault specs are checked first (ConfigError, one line), before the twin is built."""
         tactile_plan = TactileFaultPlan.parse(tactile_faults, option="--tactile-faults")
         if camera_placements is not None and not cameras:
-            from twin.interface.errors import ConfigError
-
             raise ConfigError("camera placements need cameras")
         self.hand: HandEmulator = make_hand_emulator(
             obj,

@@ -76,7 +76,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     for flag, value in (("--camera-placement", args.camera_placement), ("--camera-rate", args.camera_rate)):
         if value is not None and (args.what != "rig" or args.no_cameras):
             raise ConfigError(f"{flag} is for `twin emulate rig` with its cameras")
-    pairs = len((args.camera_placement or "lateral").split(","))
+    pairs = 1 if args.camera_placement is None else len(args.camera_placement.split(","))
     pairs = 0 if args.what != "rig" or args.no_cameras else pairs
     last = 65535 - 1 - pairs  # the hand on PORT, the pads on PORT+1, pair k's cameras on PORT+2+k
     if args.what == "rig" and where != "pty" and int(where[4:]) > last:

@@ -2,9 +2,11 @@
 
 The 262's RealTime mode controls motor velocity (LCV, LCPG), so the host turns each position set
 point into velocities: every cycle it commands the velocity that brings the motor's set point to the
-target within one period, limited by the command's maximum velocity. The set point is integrated
-from the velocities actually sent, so a finger stalled on an object keeps the force it built up
-instead of winding up to full torque: the same motor model as the twin's position servo.
+target by the next control block (within one period; within its longest recent gap on a host that
+stalls, since the firmware holds a velocity until the next block), limited by the command's maximum
+velocity. The set point is integrated from the velocities actually sent, so a finger stalled on an
+object keeps the force it built up instead of winding up to full torque: the same motor model as the
+twin's position servo.
 
 Recovery: a RealTime reply that is missing (later than its wire time plus the driver's scheduling
 allowance), short or noisy is retried after leaving and re-entering LOOP; after `watchdog_cycles`
@@ -16,6 +18,7 @@ EOF, EIO, a reset connection) stop at once and say which it was.
 from __future__ import annotations
 
 import logging
+from collections import deque
 
 import numpy as np
 from twin.hardware.bh262.driver import BH262, SUPPORTED_BAUD, HandTimeoutError, PortLostError, PortSettings
@@ -45,6 +48,10 @@ STOPPED_COUNTS_S = 100.0
 """A motor reporting less than this speed (LFV) has stopped: a finger still on its way is only late."""
 STOPPED_READS = 3
 """Readings in a row (0.1 s at 30 Hz) a motor must sit stopped short before the model follows it."""
+STALL_WINDOW_S = 1.0
+"""How far back the host's gaps between control blocks count toward how long a velocity stays in force."""
+ON_TIME_PERIODS = 1.5
+"""A gap up to this many periods is a loop on time (its velocity closes the error within one period)."""
 IDLE_TRIES = 3
 """Bare CRs idle() sends, `timeout_s` apart, to find the prompt before T: a hand silent for a moment
 (noise, a late reply in flight) is still stopped."""
@@ -96,7 +103,7 @@ class BH8SerialHand(Hand):
         self.watchdog_cycles = watchdog_cycles
         self.lcvc, self.lfvc = lcvc, lfvc
         self.position_gain = position_gain
-        """Fraction of the set-point error closed per period (1: deadbeat, as the twin's slew)."""
+        """Fraction of the set-point error closed by the next block (1: deadbeat, as the twin's slew)."""
         self.bh = BH262(port)
         self._spec = hand_device_spec(config)
         self.recoveries: list[str] = []
@@ -108,6 +115,8 @@ class BH8SerialHand(Hand):
         """Readings in a row each motor has sat stopped short of an opening target."""
         self._velocity = np.zeros(4)
         self._t_sent: float | None = None
+        self._gaps: deque[tuple[float, float]] = deque()
+        """(sent at, seconds since the block before) of the control blocks of the last STALL_WINDOW_S."""
         self._commanded_since_read = True
         self._resync_needed = False
         """A cycle failed: bytes of it may still be in flight, so LOOP is left and re-entered first."""
@@ -153,6 +162,9 @@ class BH8SerialHand(Hand):
             self.bh.close()
             raise
         self._setpoint = None
+        self._velocity[:] = 0.0
+        self._t_sent = None
+        self._gaps.clear()
         self._stopped_short[:] = 0
         self._commanded_since_read = True
         self._resync_needed = False
@@ -258,14 +270,15 @@ class BH8SerialHand(Hand):
         self._stopped_short[follow] = 0
 
     def _servo(self, t_s: float) -> dict[str, list[int]]:
-        """LCV/LCPG per motor: the velocity that closes the set-point error within one period."""
+        """LCV/LCPG per motor: the velocity that closes the set-point error by the next block."""
         if self._setpoint is None:
             return {"LCV": [0] * 4, "LCPG": [0] * 4}
         if self._t_sent is not None:
             dt = max(0.0, t_s - self._t_sent)
             self._setpoint = np.clip(self._setpoint + self._velocity * dt, 0.0, MAX_COUNTS)
+            self._gaps.append((t_s, dt))
         self._t_sent = t_s
-        wanted = self.position_gain * (self._target - self._setpoint) / self.spec.period_s
+        wanted = self.position_gain * (self._target - self._setpoint) / self._hold_s(t_s)
         limit = min(self._max_velocity, self.max_wire_velocity_counts_s)
         # Truncated toward zero: the hand never moves faster than the command allows.
         lcv = np.trunc(np.clip(wanted, -limit, limit) * self.velocity_unit_s / self.lcvc).astype(int)
@@ -273,6 +286,21 @@ class BH8SerialHand(Hand):
         self._velocity = lcv * self.lcvc / self.velocity_unit_s
         gain = [100] * 4
         return {"LCV": lcv.tolist(), "LCPG": gain}
+
+    def _hold_s(self, t_s: float) -> float:
+        """How long the velocity sent now will stay in force: one period on a loop that keeps time, else
+        the longest gap between blocks in the last STALL_WINDOW_S.
+
+        The firmware holds a velocity until the next block. One that closes the error in a period, held
+        for h periods, carries the set point past the target by (h - 1) times the error, and from h = 2
+        on each correction overshoots further: a host stalling for 150 ms at 30 Hz sets the fingers
+        swinging by over a thousand counts. Aimed at the longest recent gap, each block closes a part of
+        the error no larger than all of it, however the stalls fall."""
+        while self._gaps and self._gaps[0][0] < t_s - STALL_WINDOW_S:
+            self._gaps.popleft()
+        period = self.spec.period_s
+        longest = max((gap for _, gap in self._gaps), default=0.0)
+        return longest if longest > ON_TIME_PERIODS * period else period
 
     def idle(self) -> None:
         """Leave RealTime mode and send T: the motors stop driving (the worm drives hold).

@@ -292,3 +292,34 @@ def test_a_prompt_that_came_late_does_not_derail_the_next_command_or_loop():
     with pytest.raises(HandCommandError, match="4"):
         p.bh._loop(DEFAULT_REALTIME)
     assert p.bh.realtime is None
+
+
+def test_a_host_that_stalls_between_commands_does_not_set_the_fingers_swinging():
+    """The 262's RealTime mode takes velocities, and a velocity stays in force until the next control
+    block: one that closes the set-point error within a 33 ms period, held through a 150 ms stall of
+    the host, drives 4.5 times as far, past the target by 3.5 times the error, and each correction
+    overshoots further (a loaded bridge's block swung its fingers by 1,500 counts this way). A host
+    that has been stalling sends what closes the error within its longest recent gap instead, so the
+    finger settles on its target however the stalls fall."""
+    from twin.hardware.backend import WallClock
+    from twin.hardware.bh262.hand import BH8SerialHand
+
+    from twin.interface.devices import HandCommand
+    from twin.interface.hand_spec import HandConfig
+
+    with make_hand_emulator(None) as emulator:
+        port = PortSettings(url=emulator.serve_tcp(0), switch_baud=38400, baud_switch_wait_s=0.05)
+        hand = BH8SerialHand(HandConfig(), port, WallClock())
+        hand.connect()
+        try:
+            start = hand.read().position_counts.astype(float)
+            target = start + np.array([3000.0, 0.0, 0.0, 0.0])
+            f1 = []
+            for cycle in range(60):  # ~4 s: a burst of three cycles, then a 150 ms stall, as the bridge did
+                f1.append(float(hand.read().position_counts[0]))
+                hand.command(HandCommand(target, 12_000.0))
+                time.sleep(0.15 if cycle % 3 == 2 else 0.01)
+        finally:
+            hand.disconnect()
+    settled = np.array(f1[-15:]) - target[0]  # the last second
+    assert np.max(np.abs(settled)) < 150, f"F1 off its target by {np.round(settled).astype(int).tolist()}"

@@ -153,6 +153,10 @@ class _Peer:
         self.bh._port.reset_input_buffer()
         self.sock.sendall(data)
 
+    def close(self) -> None:
+        self.bh._port.close()
+        self.sock.close()
+
 
 _peer: _Peer | None = None
 
@@ -162,6 +166,16 @@ def peer() -> _Peer:
     if _peer is None:
         _peer = _Peer()
     return _peer
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _peer_closed():
+    """The fuzzers share one peer (a connection per example would dominate their time): closed after."""
+    global _peer
+    yield
+    if _peer is not None:
+        _peer.close()
+        _peer = None
 
 
 @pytest.mark.slow

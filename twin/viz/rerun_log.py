@@ -1093,11 +1093,14 @@ def _image(rgb: np.ndarray, jpeg_quality: int | None) -> rr.Image | rr.EncodedIm
 
 def _png_depth(depth_units: np.ndarray) -> rr.EncodedDepthImage:
     """A uint16 depth image (DEPTH_MM_PER_UNIT) PNG-compressed: mostly zeros outside the object's mask,
-    it shrinks ~20-fold (a raw 320x240 depth image is 154 kB)."""
+    it shrinks ~40-fold (a raw 320x240 depth image is 154 kB). Run-length deflate: on the twin's lateral
+    view 3.8 kB in 1.2 ms, where zlib's level 9 took 10 ms (16 ms on the hand loop's thread under load)
+    for 4.0 kB."""
     import cv2
 
     image = np.ascontiguousarray(depth_units, dtype=np.uint16)
-    ok, png = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    options = [cv2.IMWRITE_PNG_COMPRESSION, 9, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+    ok, png = cv2.imencode(".png", image, options)
     if not ok:
         raise ValueError(f"could not PNG-encode a depth image of shape {depth_units.shape}")
     return rr.EncodedDepthImage(png.tobytes(), media_type="image/png", meter=1e3 / DEPTH_MM_PER_UNIT)

@@ -35,6 +35,7 @@ SECTIONS = (
     "identification",
     "identification_cameras",
     "identification_hardware",
+    "identification_hardware_numbered",
     "interval_calibration",
     "identifiability",
     "grasp_scatter",

@@ -128,3 +128,13 @@ def test_the_bare_replay_is_the_runs_own_physics_step_for_step():
     assert row["replay_s"] > 0 and row["cli_s"] > 0
     table = run_overhead.to_markdown({"duration_s": 1.0, "rows": [row], "load": 1.0, "cores": 2})
     assert "| run / replay |" in table.replace("**", "") and "largest joint difference" in table
+
+
+def test_the_bridge_takes_the_cases_the_sims_draw_numbered(tmp_path):
+    """identification_hardware_numbered draws identification_cameras' hidden cases again and finds the
+    ones that benchmark's sim runs gave a number for: the same shapes, sizes and moduli in its order."""
+    from benchmarks.identification_hardware_numbered import NUMBERED, numbered_cases
+
+    cases = numbered_cases(tmp_path)
+    assert [(c["shape"], round(c["young_pa"] / 1e3, 1)) for c in cases] == list(NUMBERED)
+    assert [round(1e3 * c["size_m"][2]) for c in cases] == [89, 61, 60]  # the table's heights (mm)

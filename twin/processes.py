@@ -145,7 +145,14 @@ def worker_pool(
         yield pool
     except BrokenProcessPool as exc:  # a worker killed (the OOM killer, `kill -9`): one line, not a traceback
         processes = list((getattr(pool, "_processes", None) or {}).values())
+        manager = getattr(pool, "_executor_manager_thread", None)
         stop_workers(pool)  # terminated and joined: every worker's exit status is final
+        if manager is not None:
+            # The pool's manager thread reaps the broken pool's workers too. A waitpid of ours that
+            # races its waitpid gets ECHILD, which multiprocessing reads as "no status yet": beside 4
+            # hogs 1 run of 30 read the statuses -15 and None and said a worker that failed as it
+            # started was killed (0 of 30 since). So they are read once it is done, as it recorded them.
+            manager.join(2 * TERMINATE_GRACE_S)
         failed = _failed_exit_status(processes)
         if failed is not None:  # an error at the worker's start, printed by it above: not a kill
             raise WorkerLostError(

@@ -227,6 +227,15 @@ def _nu_cell(est: dict | None) -> str:
     return f"none: {est['nu_failed'][:70]}" if est.get("nu_failed") else ""
 
 
+TABLE_HEAD = (
+    "| shape | size (mm) | placement (mm) | Poisson | true E (kPa) | through the bridge: E (kPa) | "
+    "nu read (95 %), error | hand (Hz); frames (points, median) per pair | the sim: E (kPa) | "
+    "the sim: nu read |",
+    "|---|---|---|---|---|---|---|---|---|---|",
+)
+"""The per-case table's head (benchmarks/identification_hardware_numbered.py's too)."""
+
+
 def to_markdown(results: dict) -> str:
     """The BENCHMARKS.md section."""
     rows = results["rows"]
@@ -248,10 +257,7 @@ def to_markdown(results: dict) -> str:
         f"**{len(scored)} held hardware runs: {_summary(scored)}.** The same cases in the sim: "
         f"{_summary([r['sim'] for r in scored])}.",
         "",
-        "| shape | size (mm) | placement (mm) | Poisson | true E (kPa) | through the bridge: E (kPa) | "
-        "nu read (95 %), error | hand (Hz); frames (points, median) per pair | the sim: E (kPa) | "
-        "the sim: nu read |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        *TABLE_HEAD,
     ]
     for r in rows:
         size = " x ".join(f"{1e3 * s:.0f}" for s in r["size_m"]) if r["size_m"] else "(mesh)"

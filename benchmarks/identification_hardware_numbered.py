@@ -84,10 +84,7 @@ def to_markdown(results: dict) -> str:
         f"**Through the bridge: {bridge._summary(ran)}.** The same cases in the sim: "
         f"{bridge._summary([r['sim'] for r in rows])}.",
         "",
-        "| shape | size (mm) | placement (mm) | Poisson | true E (kPa) | through the bridge: E (kPa) | "
-        "nu read (95 %), error | hand (Hz); frames (points, median) per pair | the sim: E (kPa) | "
-        "the sim: nu read |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        *bridge.TABLE_HEAD,
     ]
     for r in rows:
         size = " x ".join(f"{1e3 * s:.0f}" for s in r["size_m"])

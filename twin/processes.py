@@ -95,8 +95,16 @@ def _start_worker(parent_pid: int, initializer: Callable[..., None] | None, init
 
 
 def stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Cancel queued work and end the pool's processes now (SIGTERM, then SIGKILL after a grace)."""
+    """Cancel queued work and end the pool's processes now (SIGTERM, then SIGKILL after a grace), then
+    wait (bounded) for the pool's manager thread to finish with them.
+
+    The manager thread reaps the workers and closes its wake-up pipe. Left running, it races two readers:
+    a waitpid of ours gets ECHILD, which multiprocessing reads as "no exit status yet" (beside 4 hogs 1
+    run of 30 read the statuses -15 and None); and at exit Python 3.11's concurrent.futures writes to
+    that pipe as the thread closes it, a "Bad file descriptor" traceback after `twin fit` was stopped
+    (once in a suite run, stop 48)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
     pool.shutdown(wait=False, cancel_futures=True)
     for process in processes:
         with contextlib.suppress(Exception):
@@ -107,6 +115,8 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
             if process.is_alive():
                 process.kill()
                 process.join(TERMINATE_GRACE_S)
+    if manager is not None:
+        manager.join(2 * TERMINATE_GRACE_S)
 
 
 _MAIN_GUARD_HINT = (
@@ -145,14 +155,7 @@ def worker_pool(
         yield pool
     except BrokenProcessPool as exc:  # a worker killed (the OOM killer, `kill -9`): one line, not a traceback
         processes = list((getattr(pool, "_processes", None) or {}).values())
-        manager = getattr(pool, "_executor_manager_thread", None)
-        stop_workers(pool)  # terminated and joined: every worker's exit status is final
-        if manager is not None:
-            # The pool's manager thread reaps the broken pool's workers too. A waitpid of ours that
-            # races its waitpid gets ECHILD, which multiprocessing reads as "no status yet": beside 4
-            # hogs 1 run of 30 read the statuses -15 and None and said a worker that failed as it
-            # started was killed (0 of 30 since). So they are read once it is done, as it recorded them.
-            manager.join(2 * TERMINATE_GRACE_S)
+        stop_workers(pool)  # terminated, joined and reaped by the manager: every exit status is final
         failed = _failed_exit_status(processes)
         if failed is not None:  # an error at the worker's start, printed by it above: not a kill
             raise WorkerLostError(

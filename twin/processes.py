@@ -102,7 +102,7 @@ def stop_workers(pool: ProcessPoolExecutor) -> None:
     a waitpid of ours gets ECHILD, which multiprocessing reads as "no exit status yet" (beside 4 hogs 1
     run of 30 read the statuses -15 and None); and at exit Python 3.11's concurrent.futures writes to
     that pipe as the thread closes it, a "Bad file descriptor" traceback after `twin fit` was stopped
-    (once in a suite run, stop 48)."""
+    (once in a suite run, 2026-11-28)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
     pool.shutdown(wait=False, cancel_futures=True)

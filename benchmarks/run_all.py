@@ -23,6 +23,7 @@ SECTIONS = (
     "foam_calibration",
     "foam_fidelity",
     "scan_foams",
+    "fem_condensation",
     "serial_cycle",
     "emulator_latency",
     "bridge_under_load",

@@ -138,3 +138,21 @@ def test_the_bridge_takes_the_cases_the_sims_draw_numbered(tmp_path):
     cases = numbered_cases(tmp_path)
     assert [(c["shape"], round(c["young_pa"] / 1e3, 1)) for c in cases] == list(NUMBERED)
     assert [round(1e3 * c["size_m"][2]) for c in cases] == [89, 61, 60]  # the table's heights (mm)
+
+
+def test_the_fems_two_condensations_give_the_same_forces():
+    """benchmarks/fem_condensation.py (quick: the library block's coarsest FEM level) solves one case by
+    fem.condense and by the right-hand-side baseline: the same forces; fem.condense and the suite's
+    calibration cache are put back."""
+    import os
+
+    from benchmarks import fem_condensation
+    from twin.sim import fem
+
+    condense, cache = fem.condense, os.environ.get("TWIN_CACHE_DIR")
+    results = fem_condensation.run(quick=True)
+    assert fem.condense is condense and os.environ.get("TWIN_CACHE_DIR") == cache
+    (row,) = results["rows"]
+    assert row["candidates"] > 100 and row["dofs"] > 1000
+    assert row["max_rel_diff"] < 1e-10 and all(f > 0 for f in row["force_per_pa_n"])
+    assert "| library block | 8 |" in fem_condensation.to_markdown(results)

@@ -66,8 +66,8 @@ def indentation_force_per_pa(
 
     skmesh = MeshTet(np.ascontiguousarray(mesh.points_m.T), np.ascontiguousarray(mesh.tets.T))
     # Quadrature of order 2 integrates this stiffness exactly: the strains of quadratic elements on straight
-    # tetrahedra are linear, their products quadratic. scikit-fem's default (4, for P2) gave the same K to
-    # 6e-16 and took 4x as long (8.5 s against 2.1 s on the 20,480-triangle scan's finest mesh).
+    # tetrahedra are linear, their products quadratic. scikit-fem's default (4, for P2) gives the same K to
+    # 6e-16 in 2.3x the time (benchmarks/fem_condensation.py).
     basis = Basis(skmesh, ElementVector(ElementTetP2()), intorder=2)
     K = asm(linear_elasticity(*lame_parameters(1.0, poisson)), basis).tocsr()
     xyz = basis.doflocs
@@ -136,10 +136,10 @@ def condense(K: Any, rest: np.ndarray, cand: np.ndarray) -> Condensed:
     ordered last, the trailing block of the factors is the Schur complement (L_cc U_cc = K_cc - K_cr
     K_rr^-1 K_rc).
 
-    The rest is ordered by nested dissection (METIS), SuperLU factors in that order with diagonal pivots.
-    On the 20,480-triangle scan's finest FEM (44,235 dofs, 1,720 candidates) this took 6.5 s where
-    factoring the rest (minimum degree) and solving for the candidates as right-hand sides took 40.6 s,
-    for the same S to 1.5e-15; minimum degree in this partial factorization took 15.5 s (2-core Xeon)."""
+    The rest is ordered by nested dissection (METIS), SuperLU factors in that order with diagonal pivots
+    (SuperLU's own minimum degree, tried once on a scan's FEM: 1.3x the entries, 2.4x the time). Against
+    factoring the rest and solving for each candidate as a right-hand side, the scan's FEM took 3.9x less
+    time, for the same forces to 4e-14 (benchmarks/fem_condensation.py)."""
     order = np.concatenate([rest[_nested_dissection(K, rest)], cand])
     lu = spla.splu(
         K[order][:, order].tocsc(),
